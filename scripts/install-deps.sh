@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Installs the Debian bookworm packages isouq needs to build, test and benchmark.
+# Idempotent; run as root. Skips apt entirely when everything is already there.
+set -euo pipefail
+packages=(
+  build-essential cmake ccache git
+  libopenvdb-dev libboost-iostreams-dev libtbb-dev libopenexr-dev libblosc-dev
+  catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
+  libopenvdb-tools
+  python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
+  blender
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "isouq: installing ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq "${missing[@]}" >/dev/null
+fi

@@ -1,0 +1,64 @@
+// isouq: primal marching cubes on sparse OpenVDB grids (SPEC §1, §8, §9; DESIGN.md).
+//
+// Every cell (the cube between voxels ijk and ijk+1) with at least one active corner is
+// meshed, including cells on the borders of active tiles (tiles are never voxelised). A corner
+// is inside when its value is >= the isovalue. Each vertex belongs to the edge it lies on,
+// keyed by (lower voxel, axis), so neighbouring cells share it and closed surfaces are
+// watertight. Vertex and triangle order depend only on the grid, never on the thread count.
+#pragma once
+
+#include "isouq/EdgeInterp.h"
+#include "isouq/MeshAttributes.h"
+#include "isouq/Progress.h"
+
+#include <openvdb/openvdb.h>
+
+#include <optional>
+
+namespace isouq {
+
+/// Which way triangles face.
+enum class Orientation {
+    Auto,          ///< level sets: outward (towards larger values); other grids: towards smaller
+    TowardsLower,  ///< normals point from values >= k towards values < k (CT "outward")
+    TowardsHigher, ///< normals point towards values >= k
+};
+
+/// What a stencil voxel outside the active set means for high-order methods (SPEC §1).
+enum class StencilPolicy {
+    TreeValues, ///< inactive voxels read the tree's value (tile or background)
+    ActiveOnly, ///< inactive voxels are missing: the method falls back to a lower order
+};
+
+/// Grid metadata written by isouq's dense sources: the index box holding real data. Cells
+/// outside it are not meshed and stencil voxels outside it are missing (SPEC §1).
+inline constexpr const char* kDataBoundsMinMeta = "isouq_data_min";
+inline constexpr const char* kDataBoundsMaxMeta = "isouq_data_max";
+
+struct MeshSettings {
+    float isovalue = 0.0f;
+    /// false: linear crossings only, positions and triangles (fastest); true: all methods,
+    /// estimates and provenance as SPEC §6 lists.
+    bool uncertainty = false;
+    /// With uncertainty off, still record `edge_i edge_j edge_k edge_axis t_linear`.
+    bool provenance = false;
+    /// The method whose crossing gives the positions when uncertainty is on.
+    EdgeMethod method = EdgeMethod::Weno;
+    StencilPolicy stencil = StencilPolicy::TreeValues;
+    Orientation orientation = Orientation::Auto;
+    /// The box of real data; when unset it is read from the grid metadata if present.
+    std::optional<openvdb::CoordBBox> dataBounds;
+    bool threaded = true;
+};
+
+/// Extracts the isosurface of @a grid at settings.isovalue.
+/// @throw openvdb::ValueError if the isovalue is not finite.
+/// @throw InterruptedError if @a interrupter asked to stop (nothing is returned then).
+template <typename GridT>
+Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
+    openvdb::util::NullInterrupter* interrupter = nullptr);
+
+extern template Mesh extractIsosurface<openvdb::FloatGrid>(
+    const openvdb::FloatGrid&, const MeshSettings&, openvdb::util::NullInterrupter*);
+
+} // namespace isouq

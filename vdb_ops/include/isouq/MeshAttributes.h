@@ -1,0 +1,91 @@
+// isouq: the indexed triangle mesh and its named per-vertex / per-face attributes (SPEC §6).
+#pragma once
+
+#include <openvdb/math/Vec3.h>
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+namespace isouq {
+
+/// One attribute column: structure-of-arrays, so PLY writers and numpy readers stream it as is.
+using AttributeData =
+    std::variant<std::vector<float>, std::vector<std::int32_t>, std::vector<std::uint8_t>>;
+
+struct Attribute {
+    std::string name;
+    AttributeData data;
+};
+
+/// An ordered set of named columns of equal length. Column order is the PLY property order.
+class AttributeTable {
+public:
+    /// Adds (or replaces) a column of @a size default-initialised values and returns it.
+    template <typename T>
+    std::vector<T>& add(std::string_view name, std::size_t size)
+    {
+        if (Attribute* existing = findColumn(name)) {
+            existing->data = std::vector<T>(size);
+            return std::get<std::vector<T>>(existing->data);
+        }
+        mColumns.push_back(Attribute{std::string(name), std::vector<T>(size)});
+        return std::get<std::vector<T>>(mColumns.back().data);
+    }
+
+    /// The column called @a name if it exists with element type T, else nullptr.
+    template <typename T>
+    const std::vector<T>* find(std::string_view name) const
+    {
+        for (const Attribute& a : mColumns)
+            if (a.name == name) return std::get_if<std::vector<T>>(&a.data);
+        return nullptr;
+    }
+    template <typename T>
+    std::vector<T>* find(std::string_view name)
+    {
+        Attribute* a = findColumn(name);
+        return a ? std::get_if<std::vector<T>>(&a->data) : nullptr;
+    }
+
+    bool has(std::string_view name) const
+    {
+        for (const Attribute& a : mColumns)
+            if (a.name == name) return true;
+        return false;
+    }
+    const std::vector<Attribute>& columns() const { return mColumns; }
+    std::vector<Attribute>& columns() { return mColumns; }
+    void clear() { mColumns.clear(); }
+
+private:
+    Attribute* findColumn(std::string_view name)
+    {
+        for (Attribute& a : mColumns)
+            if (a.name == name) return &a;
+        return nullptr;
+    }
+    std::vector<Attribute> mColumns;
+};
+
+/// Number of elements of a column, whatever its type.
+inline std::size_t attributeSize(const AttributeData& data)
+{
+    return std::visit([](const auto& v) { return v.size(); }, data);
+}
+
+/// An indexed triangle mesh in world space with named attributes (SPEC §6 names:
+/// `t_linear`, `edge_i`, `err_est`, ... per vertex; `hidden` per face).
+struct Mesh {
+    std::vector<openvdb::Vec3s> positions;
+    std::vector<openvdb::Vec3I> triangles;
+    AttributeTable vertexAttributes;
+    AttributeTable faceAttributes;
+
+    std::size_t vertexCount() const { return positions.size(); }
+    std::size_t triangleCount() const { return triangles.size(); }
+};
+
+} // namespace isouq

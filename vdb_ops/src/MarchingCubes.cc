@@ -1,0 +1,1 @@
+// placeholder: the mesher is being written
