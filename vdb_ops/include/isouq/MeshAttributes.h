@@ -3,6 +3,7 @@
 
 #include <openvdb/math/Vec3.h>
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -83,6 +84,10 @@ struct Mesh {
     std::vector<openvdb::Vec3I> triangles;
     AttributeTable vertexAttributes;
     AttributeTable faceAttributes;
+    /// The grid's index-to-world map, row-major, column-vector convention:
+    /// world = M * (i, j, k, 1). With `edge_i/j/k`, `edge_axis` and `t_<method>` it lets a viewer
+    /// place any method's crossing (C3) without the volume. Written to PLY as a header comment.
+    std::array<double, 16> indexToWorld{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
 
     std::size_t vertexCount() const { return positions.size(); }
     std::size_t triangleCount() const { return triangles.size(); }
