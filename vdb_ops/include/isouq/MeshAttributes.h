@@ -1,7 +1,7 @@
 // isouq: the indexed triangle mesh and its named per-vertex / per-face attributes (SPEC §6).
 #pragma once
 
-#include <openvdb/math/Vec3.h>
+#include <openvdb/Types.h> // openvdb::Vec3s, Vec3I
 
 #include <array>
 #include <cstdint>
