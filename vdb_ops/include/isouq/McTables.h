@@ -7,8 +7,12 @@
 //   * on each face, walking its corners counter-clockwise seen from outside the cube, every
 //     crossing edge where the walk enters the inside is joined to the next crossing where it
 //     leaves, so an ambiguous face (inside corners on a diagonal) keeps its inside corners apart;
-//   * the joined crossings form closed loops; each loop is fanned into triangles from its
-//     lowest-numbered edge. Triangles face from inside (>= k) towards outside (< k).
+//   * the joined crossings form closed loops; each loop is fanned into triangles from the first
+//     vertex (walking from its lowest-numbered edge) whose fan adds no diagonal between two
+//     vertices on one cube face. Such a diagonal could also appear in the neighbour across that
+//     face and make the edge non-manifold; without it, every mesh edge inside a cell belongs to
+//     that cell alone and every edge on a face to the two cells sharing it. Triangles face from
+//     inside (>= k) towards outside (< k).
 // Corners and edges are numbered as in Lorensen & Cline: corner c has offset
 // (c&1 ^ (c>>1)&1, (c>>1)&1, (c>>2)&1); see kCornerOffset and kEdgeCorners below.
 #pragma once
@@ -43,12 +47,37 @@ constexpr int edgeBetween(int a, int b)
     return -1;
 }
 
+/// Bit f set when edge e lies on face f.
+constexpr int faceMaskOf(int e)
+{
+    int mask = 0;
+    for (int f = 0; f < 6; ++f) {
+        int ends = 0;
+        for (int c : kFaceCorners[f]) ends += (c == kEdgeCorners[e][0]) + (c == kEdgeCorners[e][1]);
+        if (ends == 2) mask |= 1 << f;
+    }
+    return mask;
+}
+
+/// The first position of @a loop from which a fan adds no diagonal within one cube face.
+constexpr int fanApex(const std::array<int, 12>& loop, int len)
+{
+    for (int apex = 0; apex < len; ++apex) {
+        bool ok = true;
+        for (int i = 2; i + 1 < len; ++i)
+            if (faceMaskOf(loop[apex]) & faceMaskOf(loop[(apex + i) % len])) ok = false;
+        if (ok) return apex;
+    }
+    return -1; // never: every loop of the 256 cases has such an apex (checked below)
+}
+
 constexpr int kMaxTriangles = 10; // a single loop through all 12 edges would give 10
 
 struct CaseTable {
     std::array<std::uint8_t, 256> triangleCount{};
     std::array<std::array<std::int8_t, 3 * kMaxTriangles>, 256> triangleEdges{};
     std::array<std::uint16_t, 256> crossingEdges{}; // bit e set when edge e crosses
+    bool valid = true;
 };
 
 constexpr CaseTable buildCaseTable()
@@ -96,10 +125,12 @@ constexpr CaseTable buildCaseTable()
                 visited[e] = true;
                 loop[len++] = e;
             }
+            const int apex = fanApex(loop, len);
+            if (apex < 0) table.valid = false;
             for (int i = 1; i + 1 < len; ++i) {
-                table.triangleEdges[cubeCase][3 * tri + 0] = std::int8_t(loop[0]);
-                table.triangleEdges[cubeCase][3 * tri + 1] = std::int8_t(loop[i]);
-                table.triangleEdges[cubeCase][3 * tri + 2] = std::int8_t(loop[i + 1]);
+                table.triangleEdges[cubeCase][3 * tri + 0] = std::int8_t(loop[apex]);
+                table.triangleEdges[cubeCase][3 * tri + 1] = std::int8_t(loop[(apex + i) % len]);
+                table.triangleEdges[cubeCase][3 * tri + 2] = std::int8_t(loop[(apex + i + 1) % len]);
                 ++tri;
             }
         }
@@ -113,6 +144,7 @@ constexpr CaseTable buildCaseTable()
 
 /// The 256 cases: triangle count, triangles as triples of cube edges, crossing-edge bits.
 inline constexpr mc_tables_internal::CaseTable kMcCases = mc_tables_internal::buildCaseTable();
+static_assert(kMcCases.valid, "every marching-cubes loop must have a fan apex free of face diagonals");
 
 /// Edge e of a cell: its axis (0 x, 1 y, 2 z) and the offset of its lower voxel from the cell's
 /// minimum corner. The vertex on that edge is keyed by (lower voxel, axis) (SPEC §1, §6).
