@@ -1,1 +1,638 @@
-// placeholder: being written
+// isouq: PLY writer and reader (SPEC §6) and atomic writes (SPEC §8: no output is left behind
+// on failure, an existing output is never clobbered). Header layout: docs/ply-format.md.
+#include "isouq/MeshIO.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+#include <string_view>
+
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the PLY writer assumes little endian");
+
+namespace isouq {
+namespace meshio_internal {
+
+// ---------------------------------------------------------------------------------------
+// Atomic writing
+// ---------------------------------------------------------------------------------------
+
+/// A file written under the temporary name `.<name>.tmp-<pid>` next to the target and renamed
+/// onto it by commit(). Destroyed without commit, it removes the temporary file.
+class AtomicFile {
+public:
+    explicit AtomicFile(const std::string& path) : mPath(path)
+    {
+        const std::size_t slash = mPath.find_last_of('/');
+        const std::string dir = slash == std::string::npos ? "" : mPath.substr(0, slash + 1);
+        const std::string name = slash == std::string::npos ? mPath : mPath.substr(slash + 1);
+        if (name.empty() || name == "." || name == "..") fail("not a file name");
+        struct stat st;
+        if (::stat(mPath.c_str(), &st) == 0) {
+            if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
+            if (::access(mPath.c_str(), W_OK) != 0) fail(std::strerror(errno));
+        }
+        const std::string temp = dir + "." + name + ".tmp-" + std::to_string(::getpid());
+        mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0666);
+        if (mFd < 0) fail(std::strerror(errno));
+        mTemp = temp;
+    }
+    AtomicFile(const AtomicFile&) = delete;
+    AtomicFile& operator=(const AtomicFile&) = delete;
+    ~AtomicFile()
+    {
+        if (mFd >= 0) ::close(mFd);
+        if (!mTemp.empty()) ::unlink(mTemp.c_str());
+    }
+
+    void write(const char* data, std::size_t size)
+    {
+        while (size > 0) {
+            const ssize_t n = ::write(mFd, data, size);
+            if (n < 0) {
+                if (errno == EINTR) continue;
+                fail(std::strerror(errno));
+            }
+            data += n;
+            size -= static_cast<std::size_t>(n);
+        }
+    }
+
+    void commit()
+    {
+        const int fd = mFd;
+        mFd = -1;
+        if (::close(fd) != 0) fail(std::strerror(errno));
+        if (::rename(mTemp.c_str(), mPath.c_str()) != 0) fail(std::strerror(errno));
+        mTemp.clear();
+    }
+
+    [[noreturn]] void fail(const std::string& reason) const
+    {
+        throw IoError("cannot write " + mPath + ": " + reason);
+    }
+
+private:
+    std::string mPath, mTemp;
+    int mFd = -1;
+};
+
+// ---------------------------------------------------------------------------------------
+// Writer
+// ---------------------------------------------------------------------------------------
+
+constexpr std::size_t kChunkBytes = std::size_t(1) << 22;
+
+/// PLY type names of the AttributeData alternatives (float, int32, uint8).
+constexpr const char* sPlyTypeNames[] = {"float", "int", "uchar"};
+constexpr std::size_t sPlyTypeSizes[] = {4, 4, 1};
+
+std::string formatDouble(double v)
+{
+    char buf[40];
+    const auto r = std::to_chars(buf, buf + sizeof(buf), v, std::chars_format::general, 17);
+    return std::string(buf, r.ptr); // same text as printf("%.17g") in the C locale
+}
+
+std::string formatFloat(float v)
+{
+    char buf[40];
+    const auto r = std::to_chars(buf, buf + sizeof(buf), v); // shortest round trip
+    return std::string(buf, r.ptr);
+}
+
+/// Copies rows [0, rows) of one column into the interleaved chunk at byte stride @a stride.
+template <typename T>
+void interleave(const T* src, std::size_t rows, char* dst, std::size_t stride)
+{
+    for (std::size_t r = 0; r < rows; ++r, dst += stride) std::memcpy(dst, src + r, sizeof(T));
+}
+
+void checkColumns(const AtomicFile& file, const AttributeTable& table, std::size_t size,
+    const char* element, std::initializer_list<const char*> reserved)
+{
+    const auto& cols = table.columns();
+    for (std::size_t c = 0; c < cols.size(); ++c) {
+        const std::string& name = cols[c].name;
+        const bool badChar = std::any_of(name.begin(), name.end(),
+            [](char ch) { return static_cast<unsigned char>(ch) <= ' ' || ch == 127; });
+        if (name.empty() || badChar)
+            file.fail(std::string(element) + " column '" + name + "' is not a PLY property name");
+        for (const char* r : reserved)
+            if (name == r) file.fail(std::string(element) + " column '" + name + "' is reserved");
+        for (std::size_t d = 0; d < c; ++d)
+            if (cols[d].name == name) file.fail(std::string(element) + " column '" + name + "' twice");
+        if (attributeSize(cols[c].data) != size)
+            file.fail(std::string(element) + " column '" + name + "' has " +
+                      std::to_string(attributeSize(cols[c].data)) + " values for " +
+                      std::to_string(size) + " " + element + "s");
+    }
+}
+
+std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
+{
+    std::vector<std::string> comments;
+    if (!options.version.empty()) comments.push_back("isouq version " + options.version);
+    std::string m = "isouq index_to_world";
+    for (double v : mesh.indexToWorld) m += " " + formatDouble(v);
+    comments.push_back(m);
+    if (options.isovalue) comments.push_back("isouq isovalue " + formatFloat(*options.isovalue));
+    if (!options.method.empty()) comments.push_back("isouq method " + options.method);
+    comments.insert(comments.end(), options.comments.begin(), options.comments.end());
+
+    std::string h = "ply\nformat binary_little_endian 1.0\n";
+    for (const std::string& c : comments) {
+        if (c.find_first_of("\r\n") != std::string::npos) file.fail("comment with a line break");
+        h += "comment " + c + "\n";
+    }
+    h += "element vertex " + std::to_string(mesh.vertexCount()) + "\n";
+    h += "property float x\nproperty float y\nproperty float z\n";
+    for (const Attribute& a : mesh.vertexAttributes.columns())
+        h += std::string("property ") + sPlyTypeNames[a.data.index()] + " " + a.name + "\n";
+    h += "element face " + std::to_string(mesh.triangleCount()) + "\n";
+    h += "property list uchar int vertex_indices\n";
+    for (const Attribute& a : mesh.faceAttributes.columns())
+        h += std::string("property ") + sPlyTypeNames[a.data.index()] + " " + a.name + "\n";
+    return h + "end_header\n";
+}
+
+std::size_t rowBytes(const AttributeTable& table, std::size_t fixed)
+{
+    for (const Attribute& a : table.columns()) fixed += sPlyTypeSizes[a.data.index()];
+    return fixed;
+}
+
+/// Interleaves the columns of rows [begin, begin + rows) after the first @a offset bytes.
+void interleaveColumns(const AttributeTable& table, std::size_t begin, std::size_t rows,
+    char* chunk, std::size_t offset, std::size_t stride)
+{
+    for (const Attribute& a : table.columns()) {
+        std::visit([&](const auto& v) { interleave(v.data() + begin, rows, chunk + offset, stride); },
+            a.data);
+        offset += sPlyTypeSizes[a.data.index()];
+    }
+}
+
+void writeBody(AtomicFile& file, const Mesh& mesh)
+{
+    const std::size_t nv = mesh.vertexCount(), nf = mesh.triangleCount();
+    const std::size_t vStride = rowBytes(mesh.vertexAttributes, 12);
+    const std::size_t fStride = rowBytes(mesh.faceAttributes, 13);
+    const std::size_t vChunk = std::max<std::size_t>(1, kChunkBytes / vStride);
+    const std::size_t fChunk = std::max<std::size_t>(1, kChunkBytes / fStride);
+    std::vector<char> chunk(std::max(std::min(vChunk, nv) * vStride, std::min(fChunk, nf) * fStride));
+
+    for (std::size_t begin = 0; begin < nv; begin += vChunk) {
+        const std::size_t rows = std::min(vChunk, nv - begin);
+        char* row = chunk.data();
+        for (std::size_t r = 0; r < rows; ++r, row += vStride)
+            std::memcpy(row, mesh.positions[begin + r].asPointer(), 12);
+        interleaveColumns(mesh.vertexAttributes, begin, rows, chunk.data(), 12, vStride);
+        file.write(chunk.data(), rows * vStride);
+    }
+    for (std::size_t begin = 0; begin < nf; begin += fChunk) {
+        const std::size_t rows = std::min(fChunk, nf - begin);
+        char* row = chunk.data();
+        for (std::size_t r = 0; r < rows; ++r, row += fStride) {
+            const openvdb::Vec3I& t = mesh.triangles[begin + r];
+            if (t[0] >= nv || t[1] >= nv || t[2] >= nv)
+                file.fail("triangle " + std::to_string(begin + r) + " has a vertex index out of range");
+            const std::int32_t idx[3] = {std::int32_t(t[0]), std::int32_t(t[1]), std::int32_t(t[2])};
+            row[0] = 3;
+            std::memcpy(row + 1, idx, 12);
+        }
+        interleaveColumns(mesh.faceAttributes, begin, rows, chunk.data(), 13, fStride);
+        file.write(chunk.data(), rows * fStride);
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Reader
+// ---------------------------------------------------------------------------------------
+
+enum class PlyType : std::uint8_t { Int8, UInt8, Int16, UInt16, Int32, UInt32, Float32, Float64 };
+
+std::size_t typeSize(PlyType t)
+{
+    constexpr std::size_t sizes[] = {1, 1, 2, 2, 4, 4, 4, 8};
+    return sizes[static_cast<int>(t)];
+}
+
+bool parseType(std::string_view s, PlyType& t)
+{
+    struct Name { const char* a; const char* b; PlyType t; };
+    static constexpr Name names[] = {{"char", "int8", PlyType::Int8},
+        {"uchar", "uint8", PlyType::UInt8}, {"short", "int16", PlyType::Int16},
+        {"ushort", "uint16", PlyType::UInt16}, {"int", "int32", PlyType::Int32},
+        {"uint", "uint32", PlyType::UInt32}, {"float", "float32", PlyType::Float32},
+        {"double", "float64", PlyType::Float64}};
+    for (const Name& n : names)
+        if (s == n.a || s == n.b) { t = n.t; return true; }
+    return false;
+}
+
+struct PlyProperty {
+    std::string name;
+    PlyType type = PlyType::Float32;
+    bool isList = false;
+    PlyType countType = PlyType::UInt8;
+};
+
+struct PlyElement {
+    std::string name;
+    std::uint64_t count = 0;
+    std::vector<PlyProperty> properties;
+};
+
+[[noreturn]] void readFail(const std::string& path, const std::string& reason)
+{
+    throw IoError("cannot read " + path + ": " + reason);
+}
+
+std::vector<std::string_view> splitWords(std::string_view line)
+{
+    std::vector<std::string_view> words;
+    std::size_t i = 0;
+    while (i < line.size()) {
+        while (i < line.size() && (line[i] == ' ' || line[i] == '\t')) ++i;
+        const std::size_t start = i;
+        while (i < line.size() && line[i] != ' ' && line[i] != '\t') ++i;
+        if (i > start) words.push_back(line.substr(start, i - start));
+    }
+    return words;
+}
+
+template <typename T>
+bool parseNumber(std::string_view s, T& value)
+{
+    const auto r = std::from_chars(s.data(), s.data() + s.size(), value);
+    return r.ec == std::errc() && r.ptr == s.data() + s.size();
+}
+
+/// Reads fixed-size binary values through a large buffer, swapping bytes for big endian.
+class BinarySource {
+public:
+    BinarySource(std::FILE* file, bool swap, const std::string& path)
+        : mFile(file), mSwap(swap), mPath(path), mBuf(kChunkBytes) {}
+
+    double scalar(PlyType t)
+    {
+        const char* p = take(typeSize(t));
+        switch (t) {
+        case PlyType::Int8: return load<std::int8_t>(p);
+        case PlyType::UInt8: return load<std::uint8_t>(p);
+        case PlyType::Int16: return load<std::int16_t>(p);
+        case PlyType::UInt16: return load<std::uint16_t>(p);
+        case PlyType::Int32: return load<std::int32_t>(p);
+        case PlyType::UInt32: return load<std::uint32_t>(p);
+        case PlyType::Float32: return load<float>(p);
+        case PlyType::Float64: return load<double>(p);
+        }
+        return 0;
+    }
+
+private:
+    template <typename T>
+    T load(const char* p) const
+    {
+        char bytes[sizeof(T)];
+        if (mSwap) std::reverse_copy(p, p + sizeof(T), bytes);
+        else std::memcpy(bytes, p, sizeof(T));
+        T v;
+        std::memcpy(&v, bytes, sizeof(T));
+        return v;
+    }
+
+    const char* take(std::size_t n)
+    {
+        if (mEnd - mPos < n) {
+            std::memmove(mBuf.data(), mBuf.data() + mPos, mEnd - mPos);
+            mEnd -= mPos;
+            mPos = 0;
+            mEnd += std::fread(mBuf.data() + mEnd, 1, mBuf.size() - mEnd, mFile);
+            if (mEnd < n) readFail(mPath, "truncated data (file ends before the last element)");
+        }
+        const char* p = mBuf.data() + mPos;
+        mPos += n;
+        return p;
+    }
+
+    std::FILE* mFile;
+    bool mSwap;
+    const std::string& mPath;
+    std::vector<char> mBuf;
+    std::size_t mPos = 0, mEnd = 0;
+};
+
+/// Reads whitespace-separated ascii numbers.
+class AsciiSource {
+public:
+    AsciiSource(std::FILE* file, const std::string& path) : mPath(path)
+    {
+        char buf[1 << 16];
+        std::size_t n;
+        while ((n = std::fread(buf, 1, sizeof(buf), file)) > 0) mText.append(buf, n);
+    }
+
+    double scalar(PlyType)
+    {
+        auto isSpace = [](char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r'; };
+        while (mPos < mText.size() && isSpace(mText[mPos])) ++mPos;
+        const std::size_t start = mPos;
+        while (mPos < mText.size() && !isSpace(mText[mPos])) ++mPos;
+        if (mPos == start) readFail(mPath, "truncated data (file ends before the last element)");
+        double v;
+        const std::string_view word(mText.data() + start, mPos - start);
+        if (!parseNumber(word, v)) readFail(mPath, "'" + std::string(word) + "' is not a number");
+        return v;
+    }
+
+private:
+    const std::string& mPath;
+    std::string mText;
+    std::size_t mPos = 0;
+};
+
+/// Where one property's values go.
+enum class Sink : std::uint8_t { Skip, X, Y, Z, Float, Int, UInt8, Triangle };
+
+struct Slot {
+    const PlyProperty* property;
+    Sink sink;
+    void* data; ///< the column's first element for Float, Int and UInt8
+};
+
+class PlyReader {
+public:
+    explicit PlyReader(const std::string& path) : mPath(path) {}
+
+    Mesh read(PlyInfo* info)
+    {
+        struct stat st;
+        if (::stat(mPath.c_str(), &st) != 0) fail(std::strerror(errno));
+        if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
+        std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(mPath.c_str(), "rb"), &std::fclose);
+        if (!file) fail(std::strerror(errno));
+
+        Mesh mesh;
+        PlyInfo header;
+        readHeader(file.get(), header, mesh);
+        const long at = std::ftell(file.get());
+        checkSizes(static_cast<std::uint64_t>(st.st_size) - static_cast<std::uint64_t>(at),
+            header.format == "ascii");
+        if (header.format == "ascii") {
+            AsciiSource source(file.get(), mPath);
+            readBody(source, mesh);
+        } else {
+            BinarySource source(file.get(), header.format == "binary_big_endian", mPath);
+            readBody(source, mesh);
+        }
+        if (info) *info = std::move(header);
+        return mesh;
+    }
+
+private:
+    [[noreturn]] void fail(const std::string& reason) const { readFail(mPath, reason); }
+
+    void readHeader(std::FILE* file, PlyInfo& info, Mesh& mesh)
+    {
+        constexpr std::size_t kMaxHeader = std::size_t(1) << 20;
+        std::size_t total = 0;
+        for (int lineNo = 0;; ++lineNo) {
+            std::string line;
+            int c;
+            while ((c = std::fgetc(file)) != EOF && c != '\n') {
+                line += static_cast<char>(c);
+                if (++total > kMaxHeader) fail("header longer than 1 MiB");
+            }
+            if (c == EOF && lineNo == 0 && line.empty()) fail("empty file");
+            if (c == EOF) fail(lineNo == 0 ? "not a PLY file" : "truncated header (no end_header)");
+            if (!line.empty() && line.back() == '\r') line.pop_back();
+            if (lineNo == 0) {
+                if (line != "ply") fail("not a PLY file (first line is not 'ply')");
+                continue;
+            }
+            if (parseHeaderLine(line, info, mesh)) break;
+        }
+        if (info.format.empty()) fail("no format line in the header");
+    }
+
+    /// Returns true at end_header.
+    bool parseHeaderLine(const std::string& line, PlyInfo& info, Mesh& mesh)
+    {
+        const std::vector<std::string_view> w = splitWords(line);
+        if (w.empty()) return false;
+        if (w[0] == "comment") {
+            const std::size_t start = line.find("comment") + 7;
+            parseComment(line.substr(std::min(line.size(), start + 1)), info, mesh);
+        } else if (w[0] == "obj_info") {
+            return false;
+        } else if (w[0] == "format") {
+            if (w.size() != 3 || w[2] != "1.0" ||
+                (w[1] != "ascii" && w[1] != "binary_little_endian" && w[1] != "binary_big_endian"))
+                fail("unsupported format line '" + line + "'");
+            info.format = std::string(w[1]);
+        } else if (w[0] == "element") {
+            PlyElement e;
+            if (w.size() != 3 || !parseNumber(w[2], e.count)) fail("bad element line '" + line + "'");
+            e.name = std::string(w[1]);
+            for (const PlyElement& f : mElements)
+                if (f.name == e.name) fail("element '" + e.name + "' appears twice");
+            mElements.push_back(std::move(e));
+        } else if (w[0] == "property") {
+            if (mElements.empty()) fail("property before any element");
+            PlyProperty p;
+            const bool ok = w.size() >= 3 && w[1] == "list"
+                ? w.size() == 5 && parseType(w[2], p.countType) && parseType(w[3], p.type)
+                : w.size() == 3 && parseType(w[1], p.type);
+            if (!ok) fail("bad property line '" + line + "'");
+            p.isList = w[1] == "list";
+            p.name = std::string(w.back());
+            for (const PlyProperty& q : mElements.back().properties)
+                if (q.name == p.name) fail("property '" + p.name + "' appears twice");
+            mElements.back().properties.push_back(std::move(p));
+        } else if (w[0] == "end_header") {
+            return true;
+        } else {
+            fail("unknown header line '" + line + "'");
+        }
+        return false;
+    }
+
+    void parseComment(const std::string& text, PlyInfo& info, Mesh& mesh)
+    {
+        const std::vector<std::string_view> w = splitWords(text);
+        if (w.size() >= 2 && w[0] == "isouq" && w[1] == "index_to_world") {
+            bool ok = w.size() == 18;
+            for (std::size_t i = 0; ok && i < 16; ++i) ok = parseNumber(w[2 + i], mesh.indexToWorld[i]);
+            if (!ok) fail("malformed comment '" + text + "' (expected 16 numbers)");
+            info.hasIndexToWorld = true;
+        } else if (w.size() == 3 && w[0] == "isouq" && w[1] == "isovalue") {
+            float k;
+            if (!parseNumber(w[2], k)) fail("malformed comment '" + text + "'");
+            info.isovalue = k;
+        } else if (w.size() == 3 && w[0] == "isouq" && w[1] == "version") {
+            info.version = std::string(w[2]);
+        } else if (w.size() == 3 && w[0] == "isouq" && w[1] == "method") {
+            info.method = std::string(w[2]);
+        } else {
+            info.comments.push_back(text);
+        }
+    }
+
+    /// Refuses counts the file cannot hold before anything is allocated.
+    void checkSizes(std::uint64_t remaining, bool ascii) const
+    {
+        for (const PlyElement& e : mElements) {
+            if (e.count == 0) continue;
+            if (e.properties.empty()) fail("element '" + e.name + "' has no properties");
+            std::uint64_t minRow = 0; // ascii: at least one character per value
+            for (const PlyProperty& p : e.properties)
+                minRow += ascii ? 1 : typeSize(p.isList ? p.countType : p.type);
+            if (e.count > remaining / minRow)
+                fail("truncated data (header announces " + std::to_string(e.count) + " " +
+                     e.name + "s, the file is too short)");
+            remaining -= e.count * minRow;
+        }
+    }
+
+    template <typename Source>
+    void readBody(Source& source, Mesh& mesh)
+    {
+        const PlyElement* vertex = nullptr;
+        for (const PlyElement& e : mElements)
+            if (e.name == "vertex") vertex = &e;
+        if (!vertex) fail("no vertex element");
+        if (vertex->count > std::uint64_t(UINT32_MAX)) fail("more than 2^32 vertices");
+
+        for (const PlyElement& e : mElements) {
+            std::vector<Slot> slots;
+            for (const PlyProperty& p : e.properties) slots.push_back(makeSlot(e, p, mesh));
+            if (&e == vertex) {
+                for (Sink s : {Sink::X, Sink::Y, Sink::Z})
+                    if (std::none_of(slots.begin(), slots.end(), [s](const Slot& q) { return q.sink == s; }))
+                        fail("the vertex element has no float x, y and z");
+            }
+            for (std::uint64_t r = 0; r < e.count; ++r)
+                for (const Slot& s : slots) readValue(source, s, r, mesh);
+        }
+        const std::size_t nv = mesh.positions.size();
+        for (std::size_t f = 0; f < mesh.triangles.size(); ++f)
+            for (int c = 0; c < 3; ++c)
+                if (mesh.triangles[f][c] >= nv)
+                    fail("face " + std::to_string(f) + " refers to vertex " +
+                         std::to_string(mesh.triangles[f][c]) + " of " + std::to_string(nv));
+    }
+
+    Slot makeSlot(const PlyElement& e, const PlyProperty& p, Mesh& mesh)
+    {
+        const bool isVertex = e.name == "vertex", isFace = e.name == "face";
+        if (p.isList) {
+            if (!isFace || (p.name != "vertex_indices" && p.name != "vertex_index"))
+                return {&p, Sink::Skip, nullptr};
+            if (!mesh.triangles.empty()) fail("two face index lists");
+            mesh.triangles.resize(e.count);
+            return {&p, Sink::Triangle, nullptr};
+        }
+        if (!isVertex && !isFace) return {&p, Sink::Skip, nullptr};
+        if (isVertex && (p.name == "x" || p.name == "y" || p.name == "z")) {
+            mesh.positions.resize(e.count);
+            return {&p, p.name == "x" ? Sink::X : p.name == "y" ? Sink::Y : Sink::Z, nullptr};
+        }
+        AttributeTable& table = isVertex ? mesh.vertexAttributes : mesh.faceAttributes;
+        switch (p.type) {
+        case PlyType::Float32:
+        case PlyType::Float64: return {&p, Sink::Float, table.add<float>(p.name, e.count).data()};
+        case PlyType::UInt8: return {&p, Sink::UInt8, table.add<std::uint8_t>(p.name, e.count).data()};
+        default: return {&p, Sink::Int, table.add<std::int32_t>(p.name, e.count).data()};
+        }
+    }
+
+    /// @a value as an integer in [lo, hi], or a failure naming the property.
+    double integer(double value, double lo, double hi, const PlyProperty& p) const
+    {
+        if (!(value >= lo && value <= hi) || value != std::floor(value))
+            fail("value " + formatDouble(value) + " of property '" + p.name + "' is out of range");
+        return value;
+    }
+
+    template <typename Source>
+    void readValue(Source& source, const Slot& s, std::uint64_t row, Mesh& mesh) const
+    {
+        const PlyProperty& p = *s.property;
+        if (p.isList) {
+            const double n = integer(source.scalar(p.countType), 0, 1e18, p);
+            if (s.sink == Sink::Triangle) {
+                if (n != 3)
+                    fail("face " + std::to_string(row) + " has " + formatDouble(n) +
+                         " vertices; only triangles are supported");
+                for (int c = 0; c < 3; ++c)
+                    mesh.triangles[row][c] = static_cast<std::uint32_t>(
+                        integer(source.scalar(p.type), 0, double(UINT32_MAX), p));
+            } else {
+                for (double i = 0; i < n; ++i) source.scalar(p.type);
+            }
+            return;
+        }
+        const double v = source.scalar(p.type);
+        switch (s.sink) {
+        case Sink::X: mesh.positions[row][0] = static_cast<float>(v); break;
+        case Sink::Y: mesh.positions[row][1] = static_cast<float>(v); break;
+        case Sink::Z: mesh.positions[row][2] = static_cast<float>(v); break;
+        case Sink::Float: static_cast<float*>(s.data)[row] = static_cast<float>(v); break;
+        case Sink::Int:
+            static_cast<std::int32_t*>(s.data)[row] =
+                static_cast<std::int32_t>(integer(v, INT32_MIN, INT32_MAX, p));
+            break;
+        case Sink::UInt8:
+            static_cast<std::uint8_t*>(s.data)[row] = static_cast<std::uint8_t>(integer(v, 0, 255, p));
+            break;
+        case Sink::Skip:
+        case Sink::Triangle: break;
+        }
+    }
+
+    const std::string& mPath;
+    std::vector<PlyElement> mElements;
+};
+
+} // namespace meshio_internal
+
+void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& options)
+{
+    using namespace meshio_internal;
+    AtomicFile file(path);
+    if (mesh.vertexCount() > std::size_t(INT32_MAX)) file.fail("more vertices than PLY int indices hold");
+    checkColumns(file, mesh.vertexAttributes, mesh.vertexCount(), "vertex", {"x", "y", "z"});
+    checkColumns(file, mesh.faceAttributes, mesh.triangleCount(), "face", {"vertex_indices"});
+    const std::string header = plyHeader(file, mesh, options);
+    file.write(header.data(), header.size());
+    writeBody(file, mesh);
+    file.commit();
+}
+
+Mesh readPly(const std::string& path, PlyInfo* info)
+{
+    return meshio_internal::PlyReader(path).read(info);
+}
+
+void checkWritable(const std::string& path)
+{
+    meshio_internal::AtomicFile probe(path); // removed again when it goes out of scope
+}
+
+void writeTextFileAtomic(const std::string& path, const std::string& text)
+{
+    meshio_internal::AtomicFile file(path);
+    file.write(text.data(), text.size());
+    file.commit();
+}
+
+} // namespace isouq

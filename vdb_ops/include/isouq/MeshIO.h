@@ -1,0 +1,67 @@
+// isouq: binary PLY output and input of meshes with named attributes (SPEC §6, §8), and
+// atomic file writing. The exact header is documented in docs/ply-format.md.
+#pragma once
+
+#include "isouq/MeshAttributes.h"
+
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace isouq {
+
+/// A file could not be written or read. what() is one line naming the path and the reason,
+/// e.g. "cannot write /nonexistent/x.ply: No such file or directory".
+class IoError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+/// Header comments of a PLY file written by isouq, in this order (docs/ply-format.md):
+/// `comment isouq version V`, `comment isouq index_to_world m00 ... m33` (always),
+/// `comment isouq isovalue K`, `comment isouq method M`, then each extra comment.
+struct PlyOptions {
+    std::string version;               ///< omitted when empty
+    std::optional<float> isovalue;     ///< shortest text that reads back as the same float
+    std::string method;                ///< e.g. "weno"; omitted when empty
+    std::vector<std::string> comments; ///< each written as `comment <text>`, one line each
+};
+
+/// What readPly found in the header besides the mesh.
+struct PlyInfo {
+    std::string format; ///< "binary_little_endian", "binary_big_endian" or "ascii"
+    std::string version;
+    std::optional<float> isovalue;
+    std::string method;
+    bool hasIndexToWorld = false;      ///< false: mesh.indexToWorld is the identity
+    std::vector<std::string> comments; ///< all other comment lines, without "comment "
+};
+
+/// Writes @a mesh as binary little-endian PLY: `element vertex` with float x y z and every
+/// vertex column in table order, `element face` with `list uchar int vertex_indices` and
+/// every face column (PLY types float, int, uchar). Atomic: the data go to a temporary file
+/// in the target's directory that is renamed onto @a path only when complete, so an existing
+/// target is never clobbered by a failed write.
+/// @throw IoError if the file cannot be written or the mesh is inconsistent (a column of the
+/// wrong length, a name with spaces, a vertex index out of range).
+void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& options = {});
+
+/// Reads a PLY file (binary little or big endian, or ascii): x y z become positions, other
+/// scalar vertex and face properties become columns (float and double as float; uchar and
+/// uint8 as uint8; other integers as int32), `vertex_indices` (or `vertex_index`) becomes the
+/// triangles. Other elements and other list properties are skipped.
+/// @throw IoError if the file is missing, truncated, malformed, has a non-triangle face or
+/// a vertex index out of range.
+Mesh readPly(const std::string& path, PlyInfo* info = nullptr);
+
+/// Fails early, before any heavy work, if @a path could not be written atomically: creates
+/// and removes a temporary file next to it.
+/// @throw IoError naming the path and the reason.
+void checkWritable(const std::string& path);
+
+/// Writes @a text to @a path atomically (e.g. the `--summary` JSON).
+/// @throw IoError naming the path and the reason.
+void writeTextFileAtomic(const std::string& path, const std::string& text);
+
+} // namespace isouq
