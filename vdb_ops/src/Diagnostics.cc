@@ -1,1 +1,102 @@
-// placeholder: being written
+// isouq: input checks (STYLE "Input checks"); docs/inputs.md.
+#include "isouq/Diagnostics.h"
+
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/parallel_reduce.h>
+
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace isouq {
+namespace diagnostics_internal {
+
+/// Non-finite count, first non-finite location (leaf order, then tiles) and finite range of
+/// the active values.
+struct ValueScan {
+    openvdb::Index64 nonFinite = 0;
+    std::size_t firstLeaf = std::numeric_limits<std::size_t>::max();
+    openvdb::Coord first;
+    float firstValue = 0.0f;
+    float min = std::numeric_limits<float>::infinity(), max = -min;
+
+    void add(float v, std::size_t leafIndex, const openvdb::Coord& ijk, openvdb::Index64 count)
+    {
+        if (std::isfinite(v)) {
+            min = std::min(min, v), max = std::max(max, v);
+            return;
+        }
+        nonFinite += count;
+        if (leafIndex < firstLeaf) firstLeaf = leafIndex, first = ijk, firstValue = v;
+    }
+    void join(const ValueScan& other)
+    {
+        nonFinite += other.nonFinite;
+        min = std::min(min, other.min), max = std::max(max, other.max);
+        if (other.firstLeaf < firstLeaf) firstLeaf = other.firstLeaf, first = other.first,
+                                         firstValue = other.firstValue;
+    }
+};
+
+ValueScan scanActiveValues(const openvdb::FloatGrid& grid)
+{
+    using LeafRange = openvdb::tree::LeafManager<const openvdb::FloatTree>::LeafRange;
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(grid.tree());
+    ValueScan scan = tbb::parallel_reduce(leaves.leafRange(), ValueScan(),
+        [](const LeafRange& range, ValueScan partial) {
+            for (auto leaf = range.begin(); leaf; ++leaf) {
+                for (auto it = leaf->cbeginValueOn(); it; ++it) {
+                    partial.add(*it, leaf.pos(), it.getCoord(), 1);
+                }
+            }
+            return partial;
+        },
+        [](ValueScan a, const ValueScan& b) { a.join(b); return a; });
+    // Active tiles come after every leaf in "first" order.
+    auto tile = grid.tree().cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile) {
+        scan.add(*tile, leaves.leafCount(), tile.getCoord(), tile.getVoxelCount());
+    }
+    return scan;
+}
+
+template <typename T>
+std::string str(const T& v)
+{
+    std::ostringstream os;
+    os << v;
+    return os.str();
+}
+
+} // namespace diagnostics_internal
+
+std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue)
+{
+    namespace di = diagnostics_internal;
+    const std::string name = grid.getName().empty() ? "the grid" : "grid '" + grid.getName() + "'";
+    if (grid.tree().activeVoxelCount() == 0) {
+        return name + " has no active voxels or tiles: nothing to mesh";
+    }
+    const openvdb::Vec3d voxel = grid.voxelSize();
+    for (int a = 0; a < 3; ++a) {
+        if (!(std::isfinite(voxel[a]) && voxel[a] > 0.0)) {
+            return name + " has a bad transform: voxel size " + di::str(voxel[0]) + " "
+                + di::str(voxel[1]) + " " + di::str(voxel[2]) + " (each must be positive and finite)";
+        }
+    }
+    const di::ValueScan scan = di::scanActiveValues(grid);
+    if (scan.nonFinite > 0) {
+        return name + " has " + std::to_string(scan.nonFinite) + " active non-finite value(s); the first, "
+            + di::str(scan.firstValue) + ", at voxel " + di::str(scan.first);
+    }
+    if (isovalue && !std::isfinite(*isovalue)) return "isovalue " + di::str(*isovalue) + " is not finite";
+    if (isovalue && !(scan.min <= *isovalue && *isovalue <= scan.max)) {
+        return "isovalue " + di::str(*isovalue) + " is outside the range of the active values of "
+            + name + ", [" + di::str(scan.min) + ", " + di::str(scan.max) + "]";
+    }
+    return "";
+}
+
+} // namespace isouq

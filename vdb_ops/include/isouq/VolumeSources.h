@@ -1,0 +1,89 @@
+// isouq: turning the user's INPUT into a FloatGrid (SPEC §5, §8; docs/inputs.md).
+//
+// INPUT is one of `path.vdb`, `path.raw` (Open SciVis name `name_XxYxZ_dtype.raw`),
+// `field:NAME` (AnalyticFields.h) or `formula:EXPR` (muParser, variables x y z). Dense sources
+// (raw, field, formula) are streamed in slabs of 8 z-slices and made sparse on the way: an 8^3
+// block becomes an active leaf only where the surface can be (KeepBlocks), the rest inactive
+// tiles, so the grid's memory follows the surface, not the bounding box. Dense grids carry the
+// data box as kDataBoundsMinMeta/MaxMeta (MarchingCubes.h).
+#pragma once
+
+#include "isouq/AnalyticFields.h"
+
+#include <openvdb/openvdb.h>
+#include <openvdb/util/NullInterrupter.h>
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+namespace isouq {
+
+/// Bad input (missing or malformed file, unknown field, bad formula, ...); what() is one line
+/// without the "isouq: error:" prefix.
+struct InputError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+/// Which 8^3 blocks of a dense source become active leaves; the others become inactive
+/// leaf-level tiles holding a value on the same side of the isovalue as the block.
+enum class KeepBlocks {
+    /// The block dilated by 3 voxels has values >= k and values < k: every crossing edge and
+    /// every stencil voxel of it (SPEC §2, 3 voxels) is in a leaf, so meshes equal dense ones.
+    Crossing,
+    /// Crossing, or k within the tricubic interpolant's reach over the dilated block (Lebesgue
+    /// bound), so hidden-feature refinement (SPEC §4) also equals the dense result.
+    CrossingOrHidden,
+    /// Every block whose dilation is not constant: identical meshes at every isovalue.
+    NonConstant,
+    /// Every block (dense; for comparisons).
+    All,
+};
+
+/// What the user asked for; CLI flags map 1:1.
+struct VolumeRequest {
+    std::string input;                        ///< path.vdb | path.raw | field:NAME | formula:EXPR
+    std::string gridName;                     ///< --grid (vdb)
+    std::optional<openvdb::Vec3i> dims;       ///< --dims X,Y,Z (raw)
+    std::string dtype;                        ///< --dtype (raw): uint8 uint16 int16 float32 float64
+    std::optional<openvdb::Vec3d> spacing;    ///< --spacing (raw, default 1,1,1)
+    std::optional<int> resolution;            ///< --resolution N (field default: the paper's; formula 64)
+    std::optional<std::pair<double, double>> domain; ///< --domain LO,HI (formula, default -1,1)
+    std::optional<float> isovalue;            ///< --isovalue
+    KeepBlocks keep = KeepBlocks::Crossing;   ///< dense sources only
+};
+
+struct LoadedVolume {
+    openvdb::FloatGrid::Ptr grid;
+    float isovalue = 0.0f;      ///< the one to use: given, or the default (SPEC §8)
+    std::string isovalueSource; ///< "given", "level set", "SPEC §5 default", "formula default",
+                                ///< "Otsu (starting value)"
+    std::string description;    ///< one line for the summary / progress
+    /// The exact field for field: and formula: inputs (world coordinates), else null.
+    std::shared_ptr<const AnalyticField> truth;
+    /// Dense sources: 8^3 blocks covering the data, and those kept as leaves.
+    std::size_t denseBlocks = 0, keptBlocks = 0;
+};
+
+/// Loads @a request.input as a FloatGrid and decides the isovalue before sparsifying.
+/// @throw InputError with one line (missing/empty/truncated file, wrong grid type, raw size
+///        mismatch, unknown field, bad or non-finite formula, isovalue giving no surface).
+/// @throw InterruptedError when @a interrupter asks to stop.
+LoadedVolume loadVolume(const VolumeRequest& request,
+    openvdb::util::NullInterrupter* interrupter = nullptr);
+
+/// A muParser field f(x, y, z) on [lo, hi]^3, default isovalue 0; thread safe (one parser per
+/// thread). @throw InputError naming the position of a parse error.
+std::shared_ptr<const AnalyticField> makeFormulaField(const std::string& expression,
+    double lo, double hi);
+
+/// Otsu's threshold of a 256-bin histogram over [lo, hi] (bin b covers
+/// [lo + b w, lo + (b+1) w), w = (hi - lo) / 256): the centre of the last bin of the lower
+/// class, as scikit-image's threshold_otsu. A starting value, not a documented isovalue.
+double otsuThreshold(const std::array<std::uint64_t, 256>& histogram, double lo, double hi);
+
+} // namespace isouq
