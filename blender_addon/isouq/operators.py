@@ -1,0 +1,335 @@
+# Operators: import (File > Import), the pipeline run (background subprocess + modal timer), the
+# analysis views C1..C7 (views.py) and rendering. Errors go to self.report and return CANCELLED.
+
+import os
+
+import bpy
+from bpy.props import BoolProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper
+
+from . import pipeline, ply_io, render, ui, views
+
+_EXPECTED = (views.ViewError, ply_io.PlyError, ValueError, OSError)
+
+
+def _preferences(context):
+    addon = context.preferences.addons.get(__package__)
+    return addon.preferences if addon else None
+
+
+class _ObjectOperator:
+    """Runs `self.run(context, obj)` on the isouq mesh; reports expected errors."""
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        try:
+            obj = views.isouq_object(context)
+            message = self.run(context, obj)
+        except _EXPECTED as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        if message:
+            self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
+class ISOUQ_OT_import_mesh(bpy.types.Operator, ImportHelper):
+    """Import an isouq mesh (.ply) with every per-vertex and per-face attribute"""
+    bl_idname = "isouq.import_mesh"
+    bl_label = "Import isouq mesh"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filename_ext = ".ply"
+    filter_glob: StringProperty(default="*.ply", options={"HIDDEN"})
+    summary: StringProperty(name="Summary JSON", subtype="FILE_PATH",
+                            description="Optional --summary JSON of the same run (C7)")
+
+    def execute(self, context):
+        try:
+            obj = views.import_ply(context, self.filepath)
+            if self.summary:
+                views.load_summary(obj, self.summary)
+        except _EXPECTED as e:
+            self.report({"ERROR"}, f"{os.path.basename(self.filepath)}: {e}")
+            return {"CANCELLED"}
+        for o in context.view_layer.objects:
+            o.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+        self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} vertices, "
+                              f"{len(obj.data.attributes)} attributes")
+        return {"FINISHED"}
+
+
+class ISOUQ_OT_run_pipeline(bpy.types.Operator):
+    """Run `isouq mesh` on the VDB file or Volume object in the background and import the result.
+    Esc cancels"""
+    bl_idname = "isouq.run_pipeline"
+    bl_label = "Run isouq"
+    bl_options = {"REGISTER", "UNDO"}
+
+    _job = None
+    _timer = None
+
+    def _prepare(self, context):
+        s = context.scene.isouq
+        volume, grid, path = s.volume, s.grid, bpy.path.abspath(s.input_path)
+        if volume is not None:
+            if volume.data.packed_file is not None:
+                raise ValueError(f"volume '{volume.name}' is packed: unpack it to a .vdb file")
+            path = bpy.path.abspath(volume.data.grids.frame_filepath or volume.data.filepath)
+            if not grid and volume.data.grids.is_loaded and volume.data.grids.active is not None:
+                grid = volume.data.grids.active.name
+        if not path:
+            raise ValueError("choose a .vdb file or a Volume object")
+        if not os.path.isfile(path):
+            raise ValueError(f"input file not found: {path}")
+        prefs = _preferences(context)
+        binary, tried = pipeline.find_binary(prefs.binary if prefs else "")
+        if binary is None:
+            raise ValueError(f"isouq binary not found ({tried}); set it in the add-on preferences")
+        request = pipeline.MeshRequest(path, s.isovalue if s.use_isovalue else None, s.method,
+                                       s.hidden_features, s.subdivisions, grid)
+        self._volume = volume
+        return pipeline.Job(request, binary).start()
+
+    def _finish(self, context, job):
+        """Imports the outputs of a finished run; returns the operator result."""
+        status = job.poll()
+        try:
+            if job.cancelled:
+                self.report({"WARNING"}, "isouq run cancelled")
+                return {"CANCELLED"}
+            if status != 0 or not os.path.isfile(job.mesh_path):
+                self.report({"ERROR"}, job.error_message())
+                return {"CANCELLED"}
+            return self._import(context, job)
+        finally:
+            job.cleanup()
+
+    def _import(self, context, job):
+        name = os.path.splitext(os.path.basename(job.request.input))[0]
+        created = []
+        try:
+            obj = views.import_ply(context, job.mesh_path, name, "MESH")
+            created.append(obj)
+            if os.path.isfile(job.summary_path):
+                views.load_summary(obj, job.summary_path)
+            if job.hidden_path and os.path.isfile(job.hidden_path):
+                hidden = views.import_ply(context, job.hidden_path, name + "_hidden", "HIDDEN")
+                created.append(hidden)
+                hidden.isouq.summary = obj.isouq.summary
+                obj.isouq.partner, hidden.isouq.partner = hidden, obj
+            for o in created:
+                o.isouq.source = job.request.input
+                if self._volume is not None:
+                    o.matrix_world = self._volume.matrix_world
+        except _EXPECTED as e:
+            for o in created:
+                me = o.data
+                bpy.data.objects.remove(o)
+                bpy.data.meshes.remove(me)
+            self.report({"ERROR"}, f"isouq output unreadable: {e}")
+            return {"CANCELLED"}
+        context.view_layer.objects.active = obj
+        self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} vertices")
+        return {"FINISHED"}
+
+    def execute(self, context):
+        """Blocking run (scripts, background mode)."""
+        try:
+            job = self._prepare(context)
+        except _EXPECTED as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        job.wait()
+        return self._finish(context, job)
+
+    def invoke(self, context, event):
+        if bpy.app.background:
+            return self.execute(context)
+        try:
+            self._job = self._prepare(context)
+        except _EXPECTED as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.25, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        wm = context.window_manager
+        if event.type == "ESC":
+            self._job.cancel()
+        elif event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        if self._job.poll() is None and not self._job.cancelled:
+            fraction = self._job.progress()
+            if fraction is not None:
+                wm.progress_update(int(100 * fraction))
+            context.workspace.status_text_set(
+                f"isouq: meshing {os.path.basename(self._job.request.input)}"
+                + (f" {100 * fraction:.0f}%" if fraction is not None else "") + " (Esc cancels)")
+            return {"RUNNING_MODAL"}
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+        return self._finish(context, self._job)
+
+
+class ISOUQ_OT_apply_threshold(_ObjectOperator, bpy.types.Operator):
+    """C1: colour vertices above/below the threshold, select those above, plot the CDF"""
+    bl_idname = "isouq.apply_threshold"
+    bl_label = "Apply Threshold"
+
+    def run(self, context, obj):
+        count, path = views.apply_threshold(context, obj)
+        ui.show_png("cdf", path)
+        return f"{count} of {len(obj.data.vertices)} vertices above the threshold"
+
+
+class ISOUQ_OT_add_box(_ObjectOperator, bpy.types.Operator):
+    """C2: add a cube empty to move and scale over the surface"""
+    bl_idname = "isouq.add_box"
+    bl_label = "Add Box"
+
+    def run(self, context, obj):
+        box = views.add_box(context, obj)
+        for o in context.view_layer.objects:
+            o.select_set(False)
+        box.select_set(True)
+        context.view_layer.objects.active = box
+        return None
+
+
+class ISOUQ_OT_select_box(_ObjectOperator, bpy.types.Operator):
+    """C2: select the vertices inside the box"""
+    bl_idname = "isouq.select_box"
+    bl_label = "Select in Box"
+
+    def run(self, context, obj):
+        return f"{views.select_box(context, obj)} vertices in the box"
+
+
+class ISOUQ_OT_apply_methods(_ObjectOperator, bpy.types.Operator):
+    """C3: place selected vertices with one method and the others with another, at once"""
+    bl_idname = "isouq.apply_methods"
+    bl_label = "Apply Methods"
+
+    def run(self, context, obj):
+        return f"{views.apply_methods(context, obj)} vertices use the inside method"
+
+
+class ISOUQ_OT_reset_positions(_ObjectOperator, bpy.types.Operator):
+    """C3: back to the primary method's positions as imported"""
+    bl_idname = "isouq.reset_positions"
+    bl_label = "Reset Positions"
+
+    def run(self, context, obj):
+        views.reset_positions(obj)
+
+
+class ISOUQ_OT_show_heatmap(_ObjectOperator, bpy.types.Operator):
+    """C4: the measure as a heat map, with a legend"""
+    bl_idname = "isouq.show_heatmap"
+    bl_label = "Heat Map"
+    reset_range: BoolProperty(name="Range from data", default=True)
+
+    def run(self, context, obj):
+        ui.show_png("legend", views.apply_heatmap(context, obj, self.reset_range))
+
+
+class ISOUQ_OT_plot_bars(_ObjectOperator, bpy.types.Operator):
+    """C5: bars of err_est, d_lc, d_lw for the vertices in the box"""
+    bl_idname = "isouq.plot_bars"
+    bl_label = "Plot Bars"
+
+    def run(self, context, obj):
+        count, path = views.plot_bars(context, obj)
+        ui.show_png("bars", path)
+        return f"{count} vertices in the box"
+
+
+class ISOUQ_OT_compare_methods(_ObjectOperator, bpy.types.Operator):
+    """C6: a copy beside the mesh placed with another method"""
+    bl_idname = "isouq.compare_methods"
+    bl_label = "Side by Side"
+
+    def run(self, context, obj):
+        return f"added {views.compare_methods(context, obj).name}"
+
+
+class ISOUQ_OT_show_hidden(_ObjectOperator, bpy.types.Operator):
+    """C6: hidden-feature surface (transparent orange) over standard MC (opaque blue)"""
+    bl_idname = "isouq.show_hidden"
+    bl_label = "Hidden over Standard"
+
+    def run(self, context, obj):
+        views.show_hidden(context, obj)
+
+
+class ISOUQ_OT_combined_view(_ObjectOperator, bpy.types.Operator):
+    """Heat map and hidden features in one view"""
+    bl_idname = "isouq.combined_view"
+    bl_label = "Combined View"
+
+    def run(self, context, obj):
+        views.combined_view(context, obj)
+
+
+class ISOUQ_OT_load_summary(_ObjectOperator, bpy.types.Operator, ImportHelper):
+    """C7: attach a --summary JSON to the isouq mesh"""
+    bl_idname = "isouq.load_summary"
+    bl_label = "Load Summary"
+    filename_ext = ".json"
+    filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
+
+    def run(self, context, obj):
+        views.load_summary(obj, self.filepath)
+
+
+class ISOUQ_OT_render_view(_ObjectOperator, bpy.types.Operator):
+    """Render the visible isouq objects to PNG (and optionally a multilayer EXR with AOVs)"""
+    bl_idname = "isouq.render_view"
+    bl_label = "Render View"
+
+    def run(self, context, obj):
+        s = context.scene.isouq
+        path = bpy.path.abspath(s.render_path)
+        exr = os.path.splitext(path)[0] + ".exr" if s.render_exr else None
+        objects = [o for o in context.scene.objects
+                   if o.type == "MESH" and o.isouq.role != "NONE" and not o.hide_render]
+        written = render.render_view(context, objects, path, s.render_engine, s.render_size,
+                                     exr, (s.measure, "hidden"))
+        return "wrote " + ", ".join(written)
+
+
+class ISOUQ_OT_open_plot(bpy.types.Operator):
+    """Open a plot in a new Image Editor window"""
+    bl_idname = "isouq.open_plot"
+    bl_label = "Open Plot"
+    key: StringProperty(default="cdf")
+
+    def execute(self, context):
+        image = ui.plot_image(self.key)
+        if image is None:
+            self.report({"ERROR"}, f"no {self.key} plot yet")
+            return {"CANCELLED"}
+        bpy.ops.wm.window_new()
+        area = context.window_manager.windows[-1].screen.areas[0]
+        area.type = "IMAGE_EDITOR"
+        area.spaces.active.image = image
+        return {"FINISHED"}
+
+
+def menu_import(self, context):
+    self.layout.operator(ISOUQ_OT_import_mesh.bl_idname, text="isouq mesh (.ply)")
+
+
+classes = (ISOUQ_OT_import_mesh, ISOUQ_OT_run_pipeline, ISOUQ_OT_apply_threshold,
+           ISOUQ_OT_add_box, ISOUQ_OT_select_box, ISOUQ_OT_apply_methods,
+           ISOUQ_OT_reset_positions, ISOUQ_OT_show_heatmap, ISOUQ_OT_plot_bars,
+           ISOUQ_OT_compare_methods, ISOUQ_OT_show_hidden, ISOUQ_OT_combined_view,
+           ISOUQ_OT_load_summary, ISOUQ_OT_render_view, ISOUQ_OT_open_plot)

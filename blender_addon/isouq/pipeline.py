@@ -1,0 +1,152 @@
+# Runs `isouq mesh` (SPEC §8) in a subprocess: finds the binary, builds the command line, polls
+# progress, cancels. No bpy, so the operator (modal timer) and the tests share it.
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+from dataclasses import dataclass, field
+
+ENV_BINARY = "ISOUQ_CLI"
+METHODS = ("linear", "cubic", "weno", "weno-paper")
+_PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
+
+
+def repo_binaries():
+    """Build-tree candidates next to this add-on's source (works through an install symlink)."""
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
+    try:
+        builds = sorted(d for d in os.listdir(repo) if d.startswith("build"))
+    except OSError:
+        return []
+    return [os.path.join(repo, d, "houdini_style_nodes", "isouq") for d in builds]
+
+
+def find_binary(preference=""):
+    """The isouq binary: the add-on preference, else $ISOUQ_CLI, else `isouq` on PATH, else the
+    repo's build directories. Returns (path or None, description of what was tried)."""
+    if preference:
+        path = os.path.expanduser(preference)
+        found = shutil.which(path) if os.sep not in path else path
+        ok = found and os.path.isfile(found) and os.access(found, os.X_OK)
+        return (found if ok else None), f"preference '{preference}'"
+    env = os.environ.get(ENV_BINARY)
+    if env:
+        ok = os.path.isfile(env) and os.access(env, os.X_OK)
+        return (env if ok else None), f"${ENV_BINARY}='{env}'"
+    on_path = shutil.which("isouq")
+    if on_path:
+        return on_path, "PATH"
+    for candidate in repo_binaries():
+        if os.path.isfile(candidate) and os.access(candidate, os.X_OK):
+            return candidate, "repo build directory"
+    return None, "PATH and the repo's build*/houdini_style_nodes/isouq"
+
+
+@dataclass
+class MeshRequest:
+    """Arguments of `isouq mesh INPUT -o OUT.ply ...`."""
+    input: str
+    isovalue: float = None
+    method: str = "weno"
+    hidden_features: bool = False
+    subdivisions: int = 4
+    grid: str = ""
+    threads: int = 0
+
+    def command(self, binary, out, summary, hidden_out=None):
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method '{self.method}'")
+        cmd = [binary, "mesh", self.input, "-o", out, "--method", self.method, "--summary", summary]
+        if self.isovalue is not None:
+            cmd += ["--isovalue", repr(float(self.isovalue))]
+        if self.hidden_features:
+            cmd += ["--hidden-features", "--subdivisions", str(self.subdivisions)]
+            if hidden_out:
+                cmd += ["--hidden-out", hidden_out]
+        if self.grid:
+            cmd += ["--grid", self.grid]
+        if self.threads > 0:
+            cmd += ["--threads", str(self.threads)]
+        return cmd
+
+
+@dataclass
+class Job:
+    """One background run. poll() -> None while running, else the exit status."""
+    request: MeshRequest
+    binary: str
+    workdir: str = field(default_factory=lambda: tempfile.mkdtemp(prefix="isouq_"))
+    process: subprocess.Popen = None
+    cancelled: bool = False
+
+    @property
+    def mesh_path(self):
+        return os.path.join(self.workdir, "mesh.ply")
+
+    @property
+    def hidden_path(self):
+        return os.path.join(self.workdir, "hidden.ply") if self.request.hidden_features else None
+
+    @property
+    def summary_path(self):
+        return os.path.join(self.workdir, "summary.json")
+
+    @property
+    def _stderr_path(self):
+        return os.path.join(self.workdir, "stderr.txt")
+
+    def start(self):
+        cmd = self.request.command(self.binary, self.mesh_path, self.summary_path, self.hidden_path)
+        with open(self._stderr_path, "wb") as err:
+            self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
+                                            stdout=subprocess.DEVNULL, stderr=err)
+        return self
+
+    def poll(self):
+        return self.process.poll()
+
+    def wait(self, timeout=None):
+        return self.process.wait(timeout)
+
+    def progress(self):
+        """Last percentage the CLI's progress bar printed, in [0, 1], or None."""
+        tail = self._stderr_tail(4096)
+        found = _PERCENT.findall(tail)
+        return min(float(found[-1]) / 100.0, 1.0) if found else None
+
+    def cancel(self, grace=3.0):
+        """SIGINT (the CLI exits 130 and leaves no output), then SIGKILL after `grace` s."""
+        self.cancelled = True
+        if self.process and self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(grace)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+    def error_message(self):
+        """The CLI's `isouq: error:` line, else the last stderr line, else the status."""
+        text = self._stderr_tail(65536).decode("utf-8", errors="replace")
+        lines = [l.strip() for l in text.splitlines() if l.strip()]
+        for line in reversed(lines):
+            if line.startswith("isouq: error:"):
+                return line
+        status = self.process.returncode if self.process else None
+        last = lines[-1] if lines else "no message"
+        return f"isouq exited with status {status}: {last}"
+
+    def _stderr_tail(self, size):
+        try:
+            with open(self._stderr_path, "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(0, f.tell() - size))
+                return f.read()
+        except OSError:
+            return b""
+
+    def cleanup(self):
+        shutil.rmtree(self.workdir, ignore_errors=True)

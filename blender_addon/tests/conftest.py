@@ -1,0 +1,46 @@
+# Shared fixtures: the add-on enabled once per session, an empty scene per test, fixture PLYs.
+
+import addon_utils
+import bpy
+import pytest
+
+import plyfixture
+
+ADDON = "isouq"
+
+
+def enable():
+    addon_utils.enable(ADDON, default_set=True, handle_error=lambda e: (_ for _ in ()).throw(e))
+    assert hasattr(bpy.types.Scene, "isouq")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def addon():
+    enable()
+    yield
+    addon_utils.disable(ADDON, default_set=True)
+
+
+@pytest.fixture(autouse=True)
+def empty_scene(addon):
+    """Resets the homefile to an empty scene (the add-on stays enabled)."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    if not hasattr(bpy.types.Scene, "isouq"):
+        enable()
+    yield bpy.context
+
+
+@pytest.fixture(scope="session")
+def sphere_ply(tmp_path_factory):
+    """(path, (positions, faces, attrs, face_attrs, comments)) of a bumpy sphere fixture."""
+    path = str(tmp_path_factory.mktemp("ply") / "sphere.ply")
+    return path, plyfixture.write_sphere(path, n=16, radius=5.5, bump=1.5)
+
+
+def scene_delta(before):
+    """Objects and meshes created since `before` = (objects, meshes) name sets."""
+    return (set(bpy.data.objects.keys()) - before[0], set(bpy.data.meshes.keys()) - before[1])
+
+
+def snapshot():
+    return set(bpy.data.objects.keys()), set(bpy.data.meshes.keys())
