@@ -3,6 +3,8 @@
 # Vertex columns go to the POINT domain, face columns to the FACE domain. float32 -> FLOAT,
 # int32 -> INT, uint8 -> INT (edge_axis 0..2, order, hidden 0/1 keep their numbers; shaders and
 # Geometry Nodes read INT directly). The PLY types are kept in mesh["isouq_ply_types"].
+# Blender attribute names are unique across domains, so a face property named like a vertex one
+# gets the suffix "_face": SPEC §6 `hidden` per face becomes the FACE attribute `hidden_face`.
 
 import json
 
@@ -67,8 +69,9 @@ def build_mesh(name, mesh):
         types = {}
         for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes)):
             for col, values in table.items():
-                set_attribute(me, col, values, domain)
-                types[f"{domain}:{col}"] = values.dtype.str
+                name = face_name(col, mesh.vertex_attributes) if domain == "FACE" else col
+                set_attribute(me, name, values, domain)
+                types[name] = {"ply": col, "dtype": values.dtype.str}
         me["isouq_ply_types"] = json.dumps(types)
         if mesh.index_to_world is not None:
             me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
@@ -80,6 +83,11 @@ def build_mesh(name, mesh):
         bpy.data.meshes.remove(me)
         raise
     return me
+
+
+def face_name(name, vertex_attributes):
+    """The Blender name of face property `name` (suffix _face when a vertex has it too)."""
+    return name + "_face" if name in vertex_attributes else name
 
 
 def set_attribute(me, name, values, domain):

@@ -91,8 +91,7 @@ def heatmap_material(measure="err_est", vmin=0.0, vmax=1.0):
     colour, value = _heat_colour(nodes, links, measure, vmin, vmax)
     _surface(nodes, links, colour)
     _aov(nodes, links, value, measure)
-    hidden = _attribute(nodes, "hidden", "Hidden")
-    _aov(nodes, links, hidden.outputs["Fac"], "hidden")
+    _aov(nodes, links, _hidden_mask(nodes, links), "hidden")
     return mat
 
 
@@ -159,19 +158,32 @@ def hidden_material():
     return solid_material("ISOUQ_hidden", HIDDEN_ORANGE, HIDDEN_ALPHA)
 
 
+def _hidden_mask(nodes, links):
+    """1 on refined faces: the face attribute `hidden_face` (or a vertex `hidden` if the file
+    has no face flags; a missing attribute reads 0)."""
+    face = _attribute(nodes, "hidden_face", "Hidden face")
+    vertex = _attribute(nodes, "hidden", "Hidden vertex")
+    both = nodes.new("ShaderNodeMath")
+    both.operation = "MAXIMUM"
+    both.name = both.label = "Hidden"
+    links.new(face.outputs["Fac"], both.inputs[0])
+    links.new(vertex.outputs["Fac"], both.inputs[1])
+    return both.outputs["Value"]
+
+
 def combined_material(measure="err_est", vmin=0.0, vmax=1.0):
-    """Heat map of `measure`, orange where the face/vertex comes from hidden-feature refinement."""
+    """Heat map of `measure`, orange where the face comes from hidden-feature refinement."""
     mat, nodes, links = _fresh("ISOUQ_combined")
     colour, value = _heat_colour(nodes, links, measure, vmin, vmax)
-    hidden = _attribute(nodes, "hidden", "Hidden")
+    hidden = _hidden_mask(nodes, links)
     mix = nodes.new("ShaderNodeMixRGB")
     mix.name = mix.label = "Hidden mix"
     mix.inputs["Color2"].default_value = HIDDEN_ORANGE
-    links.new(hidden.outputs["Fac"], mix.inputs["Fac"])
+    links.new(hidden, mix.inputs["Fac"])
     links.new(colour, mix.inputs["Color1"])
     _surface(nodes, links, mix.outputs["Color"])
     _aov(nodes, links, value, measure)
-    _aov(nodes, links, hidden.outputs["Fac"], "hidden")
+    _aov(nodes, links, hidden, "hidden")
     return mat
 
 
