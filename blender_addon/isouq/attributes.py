@@ -13,7 +13,7 @@ import numpy as np
 
 from . import analysis
 
-_BLENDER_TYPES = {"f": "FLOAT", "i": "INT", "u": "INT"}
+_BLENDER_TYPES = {"f": "FLOAT", "i": "INT", "u": "INT", "b": "BOOLEAN"}
 _NUMPY_OF = {"FLOAT": np.float32, "INT": np.int32, "BOOLEAN": np.bool_}
 
 
