@@ -82,12 +82,13 @@ def dump(path):
         import meshio
     except ImportError:
         return out
+    if face is not None:  # meshio 5.0 looks for face scalars after all the index lists
+        return out
     m = meshio.read(path, file_format="ply")
     out["meshio"] = {"points": _exact(m.points.astype(np.float32).ravel()),
                      "point_data": {n: _exact(v.astype(vertex.dtype[n]))
-                                    for n, v in m.point_data.items()}}
-    if face is None:  # meshio 5.0 misplaces face scalars after the index lists
-        out["meshio"]["triangles"] = m.cells_dict["triangle"].ravel().tolist()
+                                    for n, v in m.point_data.items()},
+                     "triangles": m.cells_dict["triangle"].ravel().tolist()}
     return out
 
 

@@ -132,7 +132,7 @@ void checkColumns(const AtomicFile& file, const AttributeTable& table, std::size
         if (attributeSize(cols[c].data) != size)
             file.fail(std::string(element) + " column '" + name + "' has " +
                       std::to_string(attributeSize(cols[c].data)) + " values for " +
-                      std::to_string(size) + " " + element + "s");
+                      std::to_string(size) + (std::string(element) == "vertex" ? " vertices" : " faces"));
     }
 }
 
