@@ -100,8 +100,11 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             if job.cancelled:
                 self.report({"WARNING"}, "isouq run cancelled")
                 return {"CANCELLED"}
-            if status != 0 or not os.path.isfile(job.mesh_path):
+            if status != 0:
                 self.report({"ERROR"}, job.error_message())
+                return {"CANCELLED"}
+            if not os.path.isfile(job.mesh_path):
+                self.report({"ERROR"}, f"isouq finished but wrote no mesh ({job.binary})")
                 return {"CANCELLED"}
             return self._import(context, job)
         finally:
