@@ -64,11 +64,11 @@ def configure(scene, engine="BLENDER_EEVEE", size=800, samples=16):
 
 
 def render_view(context, objects, path, engine="BLENDER_EEVEE", size=800, exr_path=None,
-                aovs=("err_est", "hidden")):
+                aovs=("err_est", "hidden"), samples=16):
     """Renders `objects` (framed) to the PNG `path`; with `exr_path` also a multilayer EXR
     holding the combined pass and the shader AOVs `aovs`. Returns the paths written."""
     scene = context.scene
-    configure(scene, engine, size)
+    configure(scene, engine, size, samples)
     frame_camera(scene, [o for o in objects if not o.hide_render])
     if exr_path:
         materials.ensure_aovs(context.view_layer, aovs)
