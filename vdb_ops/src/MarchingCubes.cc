@@ -34,6 +34,8 @@ constexpr int kWords = 3 * 512 / 64; // one bit per (voxel, axis) owned by a blo
 
 inline int voxelOffset(int x, int y, int z) { return (x << 6) | (y << 3) | z; }
 
+enum RegionSide : std::uint8_t { kAllOutside = 0, kAllInside = 1, kMixed = 2 };
+
 /// What the count pass learns about one block and the fill pass needs again.
 struct BlockRecord {
     std::array<std::uint64_t, kWords> edgeMask{}; // bit 3*voxelOffset + axis: the edge has a vertex
@@ -90,104 +92,192 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded)
     }
 }
 
-/// A block's values, active states and cell cases, gathered with a halo into dense arrays that
-/// stay in cache. Coordinates are relative to the block origin and range over [lo, lo + width).
+/// A block's values with a halo, and bit rows (one bit per z) of which voxels are inside
+/// (>= isovalue) and active, and of which cells are meshed and cross. Coordinates are relative
+/// to the block origin and range over [lo, lo + width); everything stays in cache.
 template <typename TreeT>
 class BlockScratch {
 public:
     using LeafT = typename TreeT::LeafNodeType;
 
-    BlockScratch(const TreeT& tree, int halo)
-        : mAccessor(tree), mLo(-halo), mWidth(kBlockDim + 2 * halo),
-          mValues(std::size_t(mWidth) * mWidth * mWidth),
-          mActive(mValues.size()), mCases(9 * 9 * 9), mProcessed(9 * 9 * 9)
+    BlockScratch(const TreeT& tree, const openvdb::Int32Tree& blockIndex, int halo)
+        : mAccessor(tree), mBlockIndex(blockIndex), mLo(-halo), mWidth(kBlockDim + 2 * halo),
+          mValues(std::size_t(mWidth) * mWidth * mWidth), mInsideRows(std::size_t(mWidth) * mWidth),
+          mActiveRows(mInsideRows.size())
     {
     }
 
     int index(int x, int y, int z) const { return ((x - mLo) * mWidth + (y - mLo)) * mWidth + (z - mLo); }
     float value(int x, int y, int z) const { return mValues[index(x, y, z)]; }
 
-    /// Copies values and active states of [lo, lo + width)^3 around @a origin, one leaf probe
-    /// per neighbouring block; a missing leaf is a constant tile or background.
-    void gather(const Coord& origin)
+    /// Which side of the isovalue the 8^3 region at @a origin lies on: a cheap summary that lets
+    /// a block whose whole neighbourhood is on one side be skipped without gathering it.
+    std::uint8_t regionSide(const Coord& origin, float isovalue)
     {
-        const int hi = mLo + mWidth;
-        const int firstBlock = (mLo - (kBlockDim - 1)) / kBlockDim; // floor division for mLo < 0
-        const int lastBlock = (hi - 1) / kBlockDim;
-        for (int bx = firstBlock; bx <= lastBlock; ++bx)
-            for (int by = firstBlock; by <= lastBlock; ++by)
-                for (int bz = firstBlock; bz <= lastBlock; ++bz)
-                    gatherNeighbour(origin, bx, by, bz, hi);
+        if (const LeafT* leaf = mAccessor.probeConstLeaf(origin)) {
+            const float* v = leaf->buffer().data();
+            unsigned inside = 0;
+            for (int i = 0; i < 512; ++i) inside += v[i] >= isovalue;
+            return inside == 0 ? kAllOutside : inside == 512 ? kAllInside : kMixed;
+        }
+        return mAccessor.getValue(origin) >= isovalue ? kAllInside : kAllOutside;
     }
 
-    /// Classifies the cells with minimum corner in [-1, 8)^3: marching-cubes case and whether the
-    /// cell is meshed (an active corner, and all corners inside the data bounds if there are any).
-    void classify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& bounds)
+    /// False when every region the gather would read is on the same side of the isovalue.
+    bool mayCross(const Coord& origin, float isovalue, const std::vector<std::uint8_t>& sides)
     {
-        for (int x = -1; x < kBlockDim; ++x)
-            for (int y = -1; y < kBlockDim; ++y)
-                for (int z = -1; z < kBlockDim; ++z) {
-                    const int cell = cellIndex(x, y, z);
-                    int cubeCase = 0;
-                    bool anyActive = false;
-                    for (int c = 0; c < 8; ++c) {
-                        const auto& d = kMcCornerOffset[c];
-                        const int v = index(x + d.x, y + d.y, z + d.z);
-                        cubeCase |= int(mValues[v] >= isovalue) << c;
-                        anyActive |= mActive[v] != 0;
-                    }
-                    if (anyActive && bounds) {
-                        const Coord cmin = origin.offsetBy(x, y, z);
-                        anyActive = bounds->isInside(cmin) && bounds->isInside(cmin.offsetBy(1));
-                    }
-                    mCases[cell] = std::uint8_t(cubeCase);
-                    mProcessed[cell] = anyActive;
+        int seen = -1;
+        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
+            for (int by = firstBlock(); by <= lastBlock(); ++by)
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) {
+                    const Coord o = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
+                    const std::int32_t b = mBlockIndex.getValue(o >> 3);
+                    const int side = b >= 0 ? sides[std::size_t(b)] : regionSide(o, isovalue);
+                    if (side == kMixed || (seen >= 0 && side != seen)) return true;
+                    seen = side;
                 }
+        return false;
     }
 
-    static int cellIndex(int x, int y, int z) { return ((x + 1) * 9 + (y + 1)) * 9 + (z + 1); }
-    std::uint8_t cubeCase(int x, int y, int z) const { return mCases[cellIndex(x, y, z)]; }
-    bool processed(int x, int y, int z) const { return mProcessed[cellIndex(x, y, z)] != 0; }
+    /// Copies values and active states of [lo, lo + width)^3 around @a origin, one leaf probe
+    /// per neighbouring block (a missing leaf is a constant tile or background), and classifies
+    /// the cells with minimum corner in [-1, 8)^3: a cell is a candidate when it is meshed (an
+    /// active corner, all corners inside the data bounds if any) and its corners straddle k.
+    /// Returns false when no cell crosses.
+    bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& bounds)
+    {
+        std::fill(mInsideRows.begin(), mInsideRows.end(), 0u);
+        std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
+        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
+            for (int by = firstBlock(); by <= lastBlock(); ++by)
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
+                    gatherNeighbour(origin, bx, by, bz, isovalue);
+        return classify(origin, bounds);
+    }
+
+    /// Bits z + 1 of the candidate cells (x, y, -1..7), for x, y in [-1, 8).
+    std::uint32_t cellRow(int x, int y) const { return mCellRows[(x + 1) * 9 + (y + 1)]; }
+
+    /// The marching-cubes case of cell (x, y, z), from the inside bit rows.
+    int cubeCase(int x, int y, int z) const
+    {
+        const int shift = z - mLo;
+        const std::uint32_t r00 = insideRow(x, y) >> shift, r10 = insideRow(x + 1, y) >> shift;
+        const std::uint32_t r11 = insideRow(x + 1, y + 1) >> shift, r01 = insideRow(x, y + 1) >> shift;
+        return int((r00 & 1) | (r10 & 1) << 1 | (r11 & 1) << 2 | (r01 & 1) << 3 | (r00 & 2) << 3 |
+                   (r10 & 2) << 4 | (r11 & 2) << 5 | (r01 & 2) << 6);
+    }
 
 private:
-    void gatherNeighbour(const Coord& origin, int bx, int by, int bz, int hi)
+    using Index = openvdb::Index;
+
+    int firstBlock() const { return (mLo - (kBlockDim - 1)) / kBlockDim; } // floor(lo / 8)
+    int lastBlock() const { return (mLo + mWidth - 1) / kBlockDim; }
+    std::uint32_t insideRow(int x, int y) const { return mInsideRows[(x - mLo) * mWidth + (y - mLo)]; }
+    std::uint32_t activeRow(int x, int y) const { return mActiveRows[(x - mLo) * mWidth + (y - mLo)]; }
+
+    void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
     {
-        const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
+        const int hi = mLo + mWidth;
         const int x0 = std::max(mLo, bx * kBlockDim), x1 = std::min(hi, (bx + 1) * kBlockDim);
         const int y0 = std::max(mLo, by * kBlockDim), y1 = std::min(hi, (by + 1) * kBlockDim);
         const int z0 = std::max(mLo, bz * kBlockDim), z1 = std::min(hi, (bz + 1) * kBlockDim);
         if (x0 >= x1 || y0 >= y1 || z0 >= z1) return;
-        const int zCount = z1 - z0;
+        const int zCount = z1 - z0, zShift = z0 - mLo;
+        const std::uint32_t zRun = (1u << zCount) - 1u;
+        const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
         if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
             const float* buffer = leaf->buffer().data();
             const auto& mask = leaf->getValueMask();
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
-                    const int dst = index(x, y, z0);
-                    std::memcpy(&mValues[dst], buffer + src, sizeof(float) * std::size_t(zCount));
-                    for (int z = 0; z < zCount; ++z) mActive[dst + z] = mask.isOn(Index(src + z));
+                    float* dst = &mValues[index(x, y, z0)];
+                    std::uint32_t inside = 0;
+                    for (int z = 0; z < zCount; ++z) {
+                        dst[z] = buffer[src + z];
+                        inside |= std::uint32_t(buffer[src + z] >= isovalue) << z;
+                    }
+                    // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
+                    const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
+                    const std::uint32_t active = std::uint32_t(word >> (src & 63)) & zRun;
+                    const int row = (x - mLo) * mWidth + (y - mLo);
+                    mInsideRows[row] |= inside << zShift;
+                    mActiveRows[row] |= active << zShift;
                 }
         } else {
-            const float tileValue = mAccessor.getValue(nOrigin);
-            const std::uint8_t tileActive = mAccessor.isValueOn(nOrigin);
+            float tileValue;
+            const bool tileActive = mAccessor.probeValue(nOrigin, tileValue);
+            const std::uint32_t inside = tileValue >= isovalue ? zRun << zShift : 0u;
+            const std::uint32_t active = tileActive ? zRun << zShift : 0u;
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
-                    const int dst = index(x, y, z0);
-                    std::fill_n(&mValues[dst], zCount, tileValue);
-                    std::fill_n(&mActive[dst], zCount, tileActive);
+                    std::fill_n(&mValues[index(x, y, z0)], zCount, tileValue);
+                    const int row = (x - mLo) * mWidth + (y - mLo);
+                    mInsideRows[row] |= inside;
+                    mActiveRows[row] |= active;
                 }
         }
     }
-    using Index = openvdb::Index;
+
+    bool classify(const Coord& origin, const std::optional<CoordBBox>& bounds)
+    {
+        // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1; shift so cell z = -1 is bit 0.
+        const int shift = -1 - mLo;
+        std::uint32_t cellMask = (1u << (kBlockDim + 1)) - 1u;
+        int xLo = -1, xHi = kBlockDim - 1, yLo = -1, yHi = kBlockDim - 1;
+        if (bounds) { // cells whose corners all lie inside the bounds: min corner in [min, max - 1]
+            const Coord lo = bounds->min() - origin, hi = bounds->max() - origin;
+            xLo = std::max(xLo, lo[0]), xHi = std::min(xHi, hi[0] - 1);
+            yLo = std::max(yLo, lo[1]), yHi = std::min(yHi, hi[1] - 1);
+            const int zLo = std::max(-1, lo[2]), zHi = std::min(kBlockDim - 1, hi[2] - 1);
+            cellMask = zLo > zHi ? 0u : (((2u << (zHi + 1)) - 1u) & ~((1u << (zLo + 1)) - 1u));
+        }
+        bool any = false;
+        for (int x = -1; x < kBlockDim; ++x)
+            for (int y = -1; y < kBlockDim; ++y) {
+                std::uint32_t cells = 0;
+                if (x >= xLo && x <= xHi && y >= yLo && y <= yHi) {
+                    const std::uint32_t in4 = insideRow(x, y) & insideRow(x + 1, y) &
+                                              insideRow(x, y + 1) & insideRow(x + 1, y + 1);
+                    const std::uint32_t any4 = insideRow(x, y) | insideRow(x + 1, y) |
+                                               insideRow(x, y + 1) | insideRow(x + 1, y + 1);
+                    const std::uint32_t act4 = activeRow(x, y) | activeRow(x + 1, y) |
+                                               activeRow(x, y + 1) | activeRow(x + 1, y + 1);
+                    const std::uint32_t allIn = (in4 & (in4 >> 1)) >> shift;
+                    const std::uint32_t anyIn = (any4 | (any4 >> 1)) >> shift;
+                    const std::uint32_t active = (act4 | (act4 >> 1)) >> shift;
+                    cells = anyIn & ~allIn & active & cellMask;
+                }
+                mCellRows[(x + 1) * 9 + (y + 1)] = cells;
+                any |= cells != 0;
+            }
+        return any;
+    }
 
     openvdb::tree::ValueAccessor<const TreeT> mAccessor;
+    openvdb::tree::ValueAccessor<const openvdb::Int32Tree> mBlockIndex;
     int mLo, mWidth;
     std::vector<float> mValues;
-    std::vector<std::uint8_t> mActive;
-    std::vector<std::uint8_t> mCases;     // cells [-1, 8)^3
-    std::vector<std::uint8_t> mProcessed; // cells [-1, 8)^3
+    std::vector<std::uint32_t> mInsideRows; // per (x, y): bit z - lo set when value >= isovalue
+    std::vector<std::uint32_t> mActiveRows; // per (x, y): bit z - lo set when active
+    std::array<std::uint32_t, 81> mCellRows{}; // per cell row (x, y) in [-1, 8)^2: candidates
 };
+
+/// Calls @a body(x, y, z, cubeCase) for each candidate cell with x, y, z >= @a from (-1 or 0).
+template <typename ScratchT, typename Body>
+void forEachCandidateCell(const ScratchT& s, int from, Body&& body)
+{
+    for (int x = from; x < kBlockDim; ++x)
+        for (int y = from; y < kBlockDim; ++y) {
+            std::uint32_t cells = s.cellRow(x, y);
+            if (from == 0) cells &= ~1u;
+            for (; cells; cells &= cells - 1) {
+                const int z = __builtin_ctz(cells) - 1;
+                body(x, y, z, s.cubeCase(x, y, z));
+            }
+        }
+}
 
 /// Count pass for one block: which owned edges carry a vertex, and the block's triangle count.
 /// An edge carries a vertex when it crosses and at least one of its four cells is meshed.
@@ -195,25 +285,19 @@ template <typename TreeT>
 void countBlock(const BlockScratch<TreeT>& s, BlockRecord& record)
 {
     record = BlockRecord{};
-    for (int x = -1; x < kBlockDim; ++x)
-        for (int y = -1; y < kBlockDim; ++y)
-            for (int z = -1; z < kBlockDim; ++z) {
-                if (!s.processed(x, y, z)) continue;
-                const int cubeCase = s.cubeCase(x, y, z);
-                if (cubeCase == 0 || cubeCase == 255) continue;
-                const bool ownsCell = x >= 0 && y >= 0 && z >= 0;
-                if (ownsCell) record.triangleCount += kMcCases.triangleCount[cubeCase];
-                const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
-                for (int e = 0; e < 12; ++e) {
-                    if (!((crossing >> e) & 1)) continue;
-                    const McEdge& edge = kMcEdges[e];
-                    const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
-                    if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
-                        continue; // owned by another block
-                    const int bit = 3 * voxelOffset(vx, vy, vz) + edge.axis;
-                    record.edgeMask[bit >> 6] |= std::uint64_t(1) << (bit & 63);
-                }
-            }
+    forEachCandidateCell(s, -1, [&](int x, int y, int z, int cubeCase) {
+        if (x >= 0 && y >= 0 && z >= 0) record.triangleCount += kMcCases.triangleCount[cubeCase];
+        const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
+        for (int e = 0; e < 12; ++e) {
+            if (!((crossing >> e) & 1)) continue;
+            const McEdge& edge = kMcEdges[e];
+            const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
+            if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
+                continue; // owned by another block
+            const int bit = 3 * voxelOffset(vx, vy, vz) + edge.axis;
+            record.edgeMask[bit >> 6] |= std::uint64_t(1) << (bit & 63);
+        }
+    });
     std::uint32_t total = 0;
     for (int w = 0; w < kWords; ++w) {
         record.rankBase[w] = total;
@@ -308,20 +392,15 @@ void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours
     const std::vector<BlockRecord>& records, const std::vector<std::uint64_t>& vertexOffsets,
     bool flip, openvdb::Vec3I* out)
 {
-    for (int x = 0; x < kBlockDim; ++x)
-        for (int y = 0; y < kBlockDim; ++y)
-            for (int z = 0; z < kBlockDim; ++z) {
-                if (!s.processed(x, y, z)) continue;
-                const int cubeCase = s.cubeCase(x, y, z);
-                const int count = kMcCases.triangleCount[cubeCase];
-                const auto& edges = kMcCases.triangleEdges[cubeCase];
-                for (int t = 0; t < count; ++t) {
-                    const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, records, vertexOffsets);
-                    const std::uint32_t b = vertexOf(x, y, z, edges[3 * t + 1], neighbours, records, vertexOffsets);
-                    const std::uint32_t c = vertexOf(x, y, z, edges[3 * t + 2], neighbours, records, vertexOffsets);
-                    *out++ = flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c);
-                }
-            }
+    forEachCandidateCell(s, 0, [&](int x, int y, int z, int cubeCase) {
+        const auto& edges = kMcCases.triangleEdges[cubeCase];
+        for (int t = 0; t < kMcCases.triangleCount[cubeCase]; ++t) {
+            const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, records, vertexOffsets);
+            const std::uint32_t b = vertexOf(x, y, z, edges[3 * t + 1], neighbours, records, vertexOffsets);
+            const std::uint32_t c = vertexOf(x, y, z, edges[3 * t + 2], neighbours, records, vertexOffsets);
+            *out++ = flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c);
+        }
+    });
 }
 
 template <typename GridT>
@@ -387,17 +466,23 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
     const int halo = 1;
-    tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(std::cref(grid.tree()), halo);
+    tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(
+        std::cref(grid.tree()), std::cref(blocks.index), halo);
     std::atomic<std::size_t> done{0};
-    const std::size_t work = 2 * blockCount;
+    const std::size_t work = 3 * blockCount;
+
+    // Which side of the isovalue each block lies on, so blocks far from the surface cost little.
+    std::vector<std::uint8_t> sides(blockCount);
+    forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
+        sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
+    });
 
     // Count pass.
     std::vector<BlockRecord> records(blockCount);
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
-        s.gather(blocks.origins[b]);
-        s.classify(blocks.origins[b], isovalue, bounds);
-        countBlock(s, records[b]);
+        if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
+        if (s.gatherAndClassify(blocks.origins[b], isovalue, bounds)) countBlock(s, records[b]);
     });
 
     // Serial prefix sums: each block's place in the output, independent of the thread count.
@@ -405,6 +490,11 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     for (std::size_t b = 0; b < blockCount; ++b) {
         vertexOffsets[b + 1] = vertexOffsets[b] + records[b].vertexCount;
         triangleOffsets[b + 1] = triangleOffsets[b] + records[b].triangleCount;
+    }
+    if (std::getenv("ISOUQ_DEBUG_BLOCKS")) {
+        std::size_t nonEmpty = 0;
+        for (const auto& r : records) nonEmpty += (r.vertexCount + r.triangleCount) > 0;
+        std::fprintf(stderr, "blocks %zu non-empty %zu leaves %zu\n", blockCount, nonEmpty, std::size_t(grid.tree().leafCount()));
     }
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
@@ -430,8 +520,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
         if (records[b].vertexCount == 0 && records[b].triangleCount == 0) return;
         const Coord& origin = blocks.origins[b];
         BlockScratch<TreeT>& s = scratch.local();
-        s.gather(origin);
-        s.classify(origin, isovalue, bounds);
+        s.gatherAndClassify(origin, isovalue, bounds);
         fillVertices(s, origin, records[b], vertexOffsets[b], isovalue, toWorld, columns);
         if (records[b].triangleCount == 0) return;
         std::int32_t neighbours[2][2][2];
