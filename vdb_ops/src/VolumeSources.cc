@@ -274,22 +274,28 @@ SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k,
 
         tbb::parallel_for(tbb::blocked_range<int>(0, ny), [&](const tbb::blocked_range<int>& r) {
             constexpr float inf = std::numeric_limits<float>::infinity();
+            std::vector<float> check(nx); // v - v: 0, or NaN once a value is not finite
             for (int y = r.begin(); y != r.end(); ++y) {
-                for (int x = 0; x < nx; ++x) {
-                    const std::size_t c = std::size_t(y) * nx + x;
-                    float lo = inf, hi = -inf, oLo = inf, oHi = -inf;
-                    double sum = 0.0;
-                    for (int z = needLo; z < needHi; ++z) {
-                        float v = win[(z - winZ0) * slice + c];
-                        const bool own = z >= zb0 && z < zb1;
-                        if (!std::isfinite(v)) {
-                            lo = -inf, hi = inf;
-                            continue;
-                        }
-                        lo = std::min(lo, v), hi = std::max(hi, v);
-                        if (own) oLo = std::min(oLo, v), oHi = std::max(oHi, v), sum += v;
+                const std::size_t row = std::size_t(y) * nx;
+                float *lo = &colLo[row], *hi = &colHi[row], *oLo = &ownLo[row], *oHi = &ownHi[row];
+                double* sum = &ownSum[row];
+                std::fill(lo, lo + nx, inf), std::fill(hi, hi + nx, -inf);
+                std::fill(oLo, oLo + nx, inf), std::fill(oHi, oHi + nx, -inf);
+                std::fill(sum, sum + nx, 0.0), std::fill(check.begin(), check.end(), 0.0f);
+                for (int z = needLo; z < needHi; ++z) {
+                    const float* v = win + (z - winZ0) * slice + row;
+                    for (int x = 0; x < nx; ++x) {
+                        lo[x] = std::min(lo[x], v[x]), hi[x] = std::max(hi[x], v[x]);
+                        check[x] += v[x] - v[x];
                     }
-                    colLo[c] = lo, colHi[c] = hi, ownLo[c] = oLo, ownHi[c] = oHi, ownSum[c] = sum;
+                    if (z < zb0 || z >= zb1) continue;
+                    for (int x = 0; x < nx; ++x) {
+                        if (!std::isfinite(v[x])) continue;
+                        oLo[x] = std::min(oLo[x], v[x]), oHi[x] = std::max(oHi[x], v[x]), sum[x] += v[x];
+                    }
+                }
+                for (int x = 0; x < nx; ++x) {
+                    if (check[x] != 0.0f) lo[x] = -inf, hi[x] = inf; // non-finite: always a leaf
                 }
             }
         });
@@ -308,16 +314,19 @@ SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k,
                 leaves[b] = nullptr;
                 if (keepBlock(rule, lo, hi, k)) {
                     auto* leaf = new LeafT(Coord(x0, y0, zb0), 0.0f, /*active=*/true);
-                    for (int i = 0; i < kBlock; ++i) {
+                    float* data = leaf->buffer().data(); // offset x << 6 | y << 3 | z
+                    for (int l = 0; l < kBlock; ++l) {
+                        // voxels outside the data box: the nearest data value, made inactive below
+                        const int z = std::min(zb0 + l, nz - 1);
                         for (int j = 0; j < kBlock; ++j) {
-                            for (int l = 0; l < kBlock; ++l) {
-                                // voxels outside the data box: inactive, the nearest data value
-                                const int x = std::min(x0 + i, nx - 1), y = std::min(y0 + j, ny - 1),
-                                          z = std::min(zb0 + l, nz - 1);
-                                const openvdb::Index n = LeafT::coordToOffset(Coord(i, j, l));
-                                leaf->setValueOnly(n, win[(z - winZ0) * slice + std::size_t(y) * nx + x]);
-                                if (x != x0 + i || y != y0 + j || z != zb0 + l) leaf->setActiveState(n, false);
-                            }
+                            const float* row = win + (z - winZ0) * slice + std::size_t(std::min(y0 + j, ny - 1)) * nx;
+                            for (int i = 0; i < kBlock; ++i) data[i << 6 | j << 3 | l] = row[std::min(x0 + i, nx - 1)];
+                        }
+                    }
+                    if (x0 + kBlock > nx || y0 + kBlock > ny || zb0 + kBlock > nz) {
+                        for (auto it = leaf->beginValueOn(); it; ++it) {
+                            const Coord c = it.getCoord();
+                            if (c.x() >= nx || c.y() >= ny || c.z() >= nz) it.setValueOff();
                         }
                     }
                     leaves[b] = leaf;
