@@ -2,14 +2,15 @@
 #
 #   blender -b --factory-startup --python-exit-code 1 -P blender_addon/scripts/render_view.py -- \
 #       --mesh MESH.ply [--hidden HF.ply] [--summary S.json] \
-#       --view heatmap|threshold|methods|compare|hidden|combined --out OUT.png [--exr OUT.exr] \
-#       [--engine eevee|cycles] [--size 800] [--measure err_est] \
+#       --view standard|heatmap|threshold|methods|compare|hidden|combined --out OUT.png \
+#       [--exr OUT.exr] [--engine eevee|cycles] [--size 800] [--measure err_est] \
 #       [--threshold V | --percentile P] [--inside weno --outside linear] [--compare-method weno] \
 #       [--cdf CDF.png] [--legend LEGEND.png]
 #
-# Views (paper sec. 4.3): heatmap C4, threshold C1 (binary map), methods C3 (inside/outside the
-# threshold), compare C6 (primary and --compare-method side by side), hidden C6 (hidden-feature
-# surface in transparent orange over standard MC in blue), combined (heat map + hidden features).
+# Views (paper sec. 4.3): standard (opaque blue, any isouq mesh), heatmap C4, threshold C1
+# (binary map), methods C3 (inside/outside the threshold), compare C6 (primary and
+# --compare-method side by side), hidden C6 (hidden-feature surface in transparent orange over
+# standard MC in blue), combined (heat map + hidden features). Errors: one line, exit status 2.
 
 import argparse
 import os
@@ -28,7 +29,8 @@ def parse(argv):
     p.add_argument("--hidden")
     p.add_argument("--summary")
     p.add_argument("--view", default="heatmap",
-                   choices=["heatmap", "threshold", "methods", "compare", "hidden", "combined"])
+                   choices=["standard", "heatmap", "threshold", "methods", "compare", "hidden",
+                            "combined"])
     p.add_argument("--out", required=True)
     p.add_argument("--exr")
     p.add_argument("--engine", default="eevee", choices=["eevee", "cycles"])
@@ -70,8 +72,13 @@ def main():
         hidden = views.import_ply(context, args.hidden, obj.name + "_hidden", "HIDDEN")
         obj.isouq.partner, hidden.isouq.partner = hidden, obj
 
-    legend = views.apply_heatmap(context, obj)
-    if args.view == "threshold":
+    has_measure = obj.data.attributes.get(s.measure) is not None
+    if args.view == "heatmap" or has_measure:
+        legend = views.apply_heatmap(context, obj)
+    if args.view == "standard":
+        from isouq import materials
+        materials.assign(obj, materials.standard_material())
+    elif args.view == "threshold":
         views.apply_threshold(context, obj)
     elif args.view == "methods":
         views.apply_methods(context, obj)
@@ -85,7 +92,7 @@ def main():
         values = views.measure_values(obj, s.measure)
         from isouq import plots
         plots.cdf_plot(args.cdf, values, views.resolve_threshold(s, values), s.measure)
-    if args.legend:
+    if args.legend and has_measure:
         shutil.copy(legend, args.legend)
 
     objects = [o for o in context.scene.objects if o.type == "MESH" and not o.hide_render]
@@ -96,4 +103,11 @@ def main():
     print("isouq render:", ", ".join(written))
 
 
-main()
+try:
+    main()
+except Exception as e:  # one line for scripts and CI, like the CLI's `isouq: error:`
+    from isouq import ply_io, views
+    if not isinstance(e, (views.ViewError, ply_io.PlyError, ValueError, OSError)):
+        raise
+    print(f"isouq render: error: {e}", file=sys.stderr)
+    raise SystemExit(2)

@@ -68,5 +68,6 @@ def test_bad_view_arguments_fail_cleanly(tmp_path):
     cmd = [bpy.app.binary_path, "-b", "--factory-startup", "--python-exit-code", "1",
            "-P", SCRIPT, "--", "--mesh", str(tmp_path / "missing.ply"), "--out", str(tmp_path / "x.png")]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert run.returncode != 0
+    assert run.returncode == 2
+    assert "isouq render: error:" in run.stderr and "missing.ply" in run.stderr
     assert not (tmp_path / "x.png").exists()
