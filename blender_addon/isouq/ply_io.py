@@ -130,8 +130,8 @@ def _read_face_element(data, offset, element, order):
     tri = np.dtype([("n", count_t), ("v", index_t, (3,))] + scalars)
     n = element.count
     if n == 0:
-        return (np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.int32),
-                np.zeros(0, dtype=np.dtype(scalars) if scalars else None)), offset
+        extra = np.zeros(0, dtype=np.dtype(scalars)) if scalars else None
+        return (np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.int32), extra), offset
     if offset + tri.itemsize * n <= len(data):
         rows = np.frombuffer(data, dtype=tri, count=n, offset=offset)
         if np.all(rows["n"] == 3):

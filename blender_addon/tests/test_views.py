@@ -302,3 +302,33 @@ def test_no_isouq_mesh_is_an_error():
     with pytest.raises(RuntimeError, match="no isouq mesh"):
         bpy.ops.isouq.apply_threshold()
     assert scene_delta(before) == (set(), set())
+
+
+def test_refined_and_nan_vertices_keep_their_position(tmp_path):
+    """Hidden-feature vertices (hidden = 1) lie on sub-edges, and a NaN t has no crossing:
+    C3 leaves both where the file put them."""
+    pos, faces, attrs, fattrs, comments = plyfixture.sphere_fixture(n=12, radius=4.0)
+    attrs["hidden"][::5] = 1
+    attrs["t_weno"][1::7] = np.nan
+    path = str(tmp_path / "refined.ply")
+    plyfixture.write_ply(path, pos, faces, attrs, fattrs, comments)
+    assert bpy.ops.isouq.import_mesh(filepath=path) == {"FINISHED"}
+    obj = bpy.context.active_object
+    s = bpy.context.scene.isouq
+    s.method_inside = s.method_outside = "weno"
+    assert bpy.ops.isouq.apply_methods() == {"FINISHED"}
+    keep = (attrs["hidden"] == 1) | np.isnan(attrs["t_weno"])
+    got = positions(obj)
+    assert np.array_equal(got[keep], pos[keep])
+    assert np.abs(got[~keep] - crossing(attrs, "weno")[~keep]).max() < 1e-6
+
+
+def test_empty_mesh_imports_as_an_empty_object(tmp_path):
+    path = str(tmp_path / "empty.ply")
+    plyfixture.write_ply(path, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32),
+                         {"t_linear": np.zeros(0, np.float32)}, {},
+                         ["isouq index_to_world 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"])
+    assert bpy.ops.isouq.import_mesh(filepath=path) == {"FINISHED"}
+    assert len(bpy.context.active_object.data.vertices) == 0
+    with pytest.raises(RuntimeError, match="no 'err_est'"):
+        bpy.ops.isouq.apply_threshold()
