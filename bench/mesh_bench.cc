@@ -1,0 +1,289 @@
+// isouq benchmark: isouq::extractIsosurface (linear crossings only) against OpenVDB's
+// tools::volumeToMesh (adaptivity 0, same isovalue) on the same grid in one process
+// (bench/README.md; DESIGN.md goals: at most 0.8x the time and at most the memory increment).
+//
+// Time: per case and thread count, one warm-up call of each, then interleaved repeats; the
+// table gives the median wall time and the median process CPU time (user + system, all threads).
+// Memory: a fresh child process (this binary re-executed) builds the same grid, trims the heap,
+// resets the high-water mark (/proc/self/clear_refs "5"), makes one call and reports the rise of
+// VmHWM; the median over several children is given. Triangles per second count a quad of
+// volumeToMesh as two triangles.
+#include "isouq/MarchingCubes.h"
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/VolumeToMesh.h>
+
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <malloc.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace {
+
+enum class Algo { Isouq, VolumeToMesh };
+
+struct CallResult {
+    std::size_t triangles = 0;   // quads count as two
+    std::size_t outputBytes = 0; // positions and index arrays of the result
+};
+
+/// The benchmark volumes: `sphereN` is the level-set sphere of radius 0.4 centred at
+/// (0.5, 0.5, 0.5) with voxel size 1/N; `smoke` is data/smoke.vdb's "density" grid.
+openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dataDir)
+{
+    if (name.rfind("sphere", 0) == 0) {
+        const int n = std::stoi(name.substr(6));
+        return openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+            0.4f, openvdb::Vec3f(0.5f), 1.0f / float(n));
+    }
+    if (name == "smoke") {
+        openvdb::io::File file(dataDir + "/smoke.vdb");
+        file.open(/*delayLoad=*/false); // load every buffer now, not on first access
+        auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid("density"));
+        file.close();
+        if (!grid) throw std::runtime_error("smoke.vdb: grid 'density' is not a float grid");
+        return grid;
+    }
+    throw std::runtime_error("unknown case " + name + " (sphereN or smoke)");
+}
+
+float isovalueOf(const std::string& name) { return name == "smoke" ? 0.1f : 0.0f; }
+
+CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue)
+{
+    CallResult r;
+    if (algo == Algo::Isouq) {
+        isouq::MeshSettings settings;
+        settings.isovalue = isovalue;
+        settings.uncertainty = false;
+        const isouq::Mesh mesh = isouq::extractIsosurface(grid, settings);
+        r.triangles = mesh.triangles.size();
+        r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
+                        mesh.triangles.size() * sizeof(openvdb::Vec3I);
+    } else {
+        std::vector<openvdb::Vec3s> points;
+        std::vector<openvdb::Vec3I> triangles;
+        std::vector<openvdb::Vec4I> quads;
+        openvdb::tools::volumeToMesh(grid, points, triangles, quads, double(isovalue), 0.0);
+        r.triangles = triangles.size() + 2 * quads.size();
+        r.outputBytes = points.size() * sizeof(openvdb::Vec3s) +
+                        triangles.size() * sizeof(openvdb::Vec3I) + quads.size() * sizeof(openvdb::Vec4I);
+    }
+    return r;
+}
+
+double wallSeconds()
+{
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+double cpuSeconds()
+{
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    auto sec = [](const timeval& t) { return double(t.tv_sec) + 1e-6 * double(t.tv_usec); };
+    return sec(u.ru_utime) + sec(u.ru_stime);
+}
+
+/// A "Key:   123 kB" line of /proc/self/status, in KiB.
+long statusKiB(const char* key)
+{
+    std::ifstream in("/proc/self/status");
+    std::string line;
+    const std::size_t n = std::strlen(key);
+    while (std::getline(in, line))
+        if (line.compare(0, n, key) == 0 && line[n] == ':') return std::stol(line.substr(n + 1));
+    throw std::runtime_error(std::string("no ") + key + " in /proc/self/status");
+}
+
+std::string loadAverage()
+{
+    std::ifstream in("/proc/loadavg");
+    std::string one;
+    in >> one;
+    return one;
+}
+
+double median(std::vector<double> v)
+{
+    std::sort(v.begin(), v.end());
+    const std::size_t n = v.size();
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+std::unique_ptr<tbb::global_control> limitThreads(int threads)
+{
+    if (threads <= 0) return nullptr;
+    return std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+        std::size_t(threads));
+}
+
+/// Child mode: build the grid, make one call, print the VmHWM rise in KiB.
+int childMemory(const std::string& caseName, Algo algo, int threads, const std::string& dataDir)
+{
+    const auto control = limitThreads(threads);
+    openvdb::FloatGrid::Ptr grid = makeGrid(caseName, dataDir);
+    // Start the worker threads now, so their stacks are in the baseline.
+    tbb::parallel_for(0, 1024, [](int) {});
+    malloc_trim(0);
+    {
+        std::ofstream clear("/proc/self/clear_refs");
+        clear << "5"; // resets VmHWM to the current RSS
+    }
+    const long before = statusKiB("VmHWM");
+    const CallResult r = runOnce(algo, *grid, isovalueOf(caseName));
+    const long after = statusKiB("VmHWM");
+    std::printf("%ld %zu\n", after - before, r.outputBytes);
+    return 0;
+}
+
+/// Runs this binary in child mode and returns the VmHWM rise in MiB.
+double memoryIncrementMiB(const std::string& caseName, Algo algo, int threads, const std::string& dataDir)
+{
+    int fds[2];
+    if (pipe(fds) != 0) throw std::runtime_error("pipe failed");
+    const pid_t pid = fork();
+    if (pid < 0) throw std::runtime_error("fork failed");
+    if (pid == 0) {
+        dup2(fds[1], STDOUT_FILENO);
+        close(fds[0]);
+        close(fds[1]);
+        const std::string algoName = algo == Algo::Isouq ? "isouq" : "vtm";
+        const std::string threadText = std::to_string(threads);
+        execl("/proc/self/exe", "isouq_bench", "--child-memory", caseName.c_str(), algoName.c_str(),
+            threadText.c_str(), dataDir.c_str(), static_cast<char*>(nullptr));
+        _exit(127);
+    }
+    close(fds[1]);
+    std::string text;
+    char buffer[256];
+    for (ssize_t got; (got = read(fds[0], buffer, sizeof buffer)) > 0;) text.append(buffer, std::size_t(got));
+    close(fds[0]);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    long kib = -1;
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !(std::istringstream(text) >> kib))
+        throw std::runtime_error("memory child failed for " + caseName);
+    return double(kib) / 1024.0;
+}
+
+struct Options {
+    std::vector<std::string> cases{"sphere256", "sphere512", "sphere1024", "smoke"};
+    std::vector<int> threads{0, 1}; // 0: TBB's default (all cores)
+    int repeats = 7;
+    int memoryRuns = 3;
+    std::string dataDir = ISOUQ_DATA_DIR;
+};
+
+std::vector<std::string> splitCommas(const std::string& s)
+{
+    std::vector<std::string> out;
+    std::stringstream in(s);
+    for (std::string item; std::getline(in, item, ',');)
+        if (!item.empty()) out.push_back(item);
+    return out;
+}
+
+Options parseOptions(int argc, char** argv)
+{
+    Options o;
+    for (int i = 1; i < argc; ++i) {
+        const std::string arg = argv[i];
+        auto next = [&]() -> std::string {
+            if (i + 1 >= argc) throw std::runtime_error(arg + " needs a value");
+            return argv[++i];
+        };
+        if (arg == "--cases") o.cases = splitCommas(next());
+        else if (arg == "--repeats") o.repeats = std::stoi(next());
+        else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
+        else if (arg == "--data") o.dataDir = next();
+        else if (arg == "--threads") {
+            o.threads.clear();
+            for (const std::string& t : splitCommas(next())) o.threads.push_back(t == "default" ? 0 : std::stoi(t));
+        } else {
+            throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
+                                     "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR]");
+        }
+    }
+    return o;
+}
+
+void benchCase(const std::string& caseName, const Options& o)
+{
+    const openvdb::FloatGrid::Ptr grid = makeGrid(caseName, o.dataDir);
+    const float isovalue = isovalueOf(caseName);
+    const double activeM = double(grid->activeVoxelCount()) * 1e-6;
+    for (const int threads : o.threads) {
+        const std::string load = loadAverage();
+        const auto control = limitThreads(threads);
+        const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+        const Algo algos[2] = {Algo::Isouq, Algo::VolumeToMesh};
+        std::size_t tris[2] = {0, 0};
+        for (int a = 0; a < 2; ++a) tris[a] = runOnce(algos[a], *grid, isovalue).triangles; // warm-up
+        std::vector<double> wall[2], cpu[2];
+        for (int r = 0; r < o.repeats; ++r)
+            for (int a = 0; a < 2; ++a) {
+                const double w0 = wallSeconds(), c0 = cpuSeconds();
+                runOnce(algos[a], *grid, isovalue);
+                wall[a].push_back(wallSeconds() - w0);
+                cpu[a].push_back(cpuSeconds() - c0);
+            }
+        double mem[2];
+        for (int a = 0; a < 2; ++a) {
+            std::vector<double> runs;
+            for (int m = 0; m < o.memoryRuns; ++m)
+                runs.push_back(memoryIncrementMiB(caseName, algos[a], threads, o.dataDir));
+            mem[a] = median(runs);
+        }
+        const double w[2] = {median(wall[0]), median(wall[1])};
+        const double c[2] = {median(cpu[0]), median(cpu[1])};
+        std::printf("| %s | %.2f | %s%d | %zu | %zu | %.1f | %.1f | **%.2f** | %.1f | %.1f | %.2f | %.1f | %.1f "
+                    "| %.1f | %.1f | **%.2f** | %s |\n",
+            caseName.c_str(), activeM, threads <= 0 ? "default " : "", used, tris[0], tris[1],
+            1e3 * w[0], 1e3 * w[1], w[0] / w[1], 1e3 * c[0], 1e3 * c[1], c[0] / c[1], 1e-6 * double(tris[0]) / w[0],
+            1e-6 * double(tris[1]) / w[1], mem[0], mem[1], mem[0] / mem[1], load.c_str());
+        std::fflush(stdout);
+    }
+}
+
+} // namespace
+
+int main(int argc, char** argv)
+{
+    try {
+        openvdb::initialize();
+        if (argc == 6 && std::string(argv[1]) == "--child-memory")
+            return childMemory(argv[2], std::string(argv[3]) == "isouq" ? Algo::Isouq : Algo::VolumeToMesh,
+                std::stoi(argv[4]), argv[5]);
+        const Options o = parseOptions(argc, argv);
+        std::printf("Load average at start: %s; %d repeats (median), memory: median of %d fresh processes.\n\n",
+            loadAverage().c_str(), o.repeats, o.memoryRuns);
+        std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
+                    "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "
+                    "| mem ratio | load |\n");
+        std::printf("|---|--:|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+        for (const std::string& c : o.cases) benchCase(c, o);
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "isouq_bench: error: %s\n", e.what());
+        return 2;
+    }
+    return 0;
+}
