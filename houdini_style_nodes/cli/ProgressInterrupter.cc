@@ -1,1 +1,83 @@
+#include "ProgressInterrupter.h"
 
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <mutex>
+
+namespace isouq::cli {
+namespace {
+
+std::atomic<bool> sInterrupted{false};
+std::mutex sDrawMutex;
+
+extern "C" void onSigint(int)
+{
+    // A second Ctrl-C while the first is being honoured ends the process at once.
+    if (sInterrupted.exchange(true)) std::_Exit(130);
+}
+
+} // namespace
+
+ProgressInterrupter::ProgressInterrupter(bool show) : mShow(show)
+{
+    std::signal(SIGINT, onSigint);
+}
+
+ProgressInterrupter::~ProgressInterrupter()
+{
+    clearLine();
+    std::signal(SIGINT, SIG_DFL);
+}
+
+bool ProgressInterrupter::interrupted() { return sInterrupted.load(); }
+
+void ProgressInterrupter::start(const char* name)
+{
+    std::lock_guard<std::mutex> lock(sDrawMutex);
+    mStage = name ? name : "";
+    mStageStart = std::chrono::steady_clock::now();
+    mLastPercent = -2;
+    draw(0);
+}
+
+void ProgressInterrupter::end()
+{
+    std::lock_guard<std::mutex> lock(sDrawMutex);
+    draw(100);
+    clearLine();
+}
+
+bool ProgressInterrupter::wasInterrupted(int percent)
+{
+    if (percent >= 0 && mShow) {
+        // Called from worker threads: draw at most every 100 ms, never block a worker.
+        std::unique_lock<std::mutex> lock(sDrawMutex, std::try_to_lock);
+        if (lock.owns_lock()) draw(percent);
+    }
+    return sInterrupted.load(std::memory_order_relaxed);
+}
+
+void ProgressInterrupter::draw(int percent)
+{
+    if (!mShow || percent == mLastPercent) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (percent != 0 && percent != 100 && now - mLastDraw < std::chrono::milliseconds(100)) return;
+    mLastDraw = now;
+    mLastPercent = percent;
+    constexpr int kWidth = 30;
+    const int filled = kWidth * std::max(0, std::min(percent, 100)) / 100;
+    const double seconds = std::chrono::duration<double>(now - mStageStart).count();
+    std::fprintf(stderr, "\r%-10s [%.*s%*s] %3d%% %6.1fs", mStage.c_str(), filled,
+        "##############################", kWidth - filled, "", percent, seconds);
+    std::fflush(stderr);
+}
+
+void ProgressInterrupter::clearLine()
+{
+    if (!mShow) return;
+    std::fprintf(stderr, "\r%*s\r", 60, "");
+    std::fflush(stderr);
+}
+
+} // namespace isouq::cli

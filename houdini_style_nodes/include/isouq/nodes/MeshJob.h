@@ -1,0 +1,37 @@
+// isouq: the `isouq mesh` pipeline as one call — load, check, mesh, measure, write (SPEC §8).
+// The command line and the node graph both run it; it never prints, it reports through the
+// interrupter (stages and percentages) and returns the summary.
+#pragma once
+
+#include <isouq/MarchingCubes.h>
+#include <isouq/VolumeSources.h>
+
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+namespace isouq::nodes {
+
+struct MeshJob {
+    VolumeRequest volume;      ///< INPUT and its options (--grid, --dims, --resolution, ...)
+    std::string output;        ///< -o OUT.ply
+    std::string summaryPath;   ///< --summary S.json ("" for none)
+    EdgeMethod method = EdgeMethod::Weno; ///< --method: the primary method (positions)
+    bool uncertainty = true;   ///< all methods and estimates; false = linear positions only
+    int threads = 0;           ///< --threads (0: all cores)
+};
+
+/// Notes the job makes for the user (defaults it chose), one line each.
+using JobNotes = std::vector<std::string>;
+
+/// Runs @a job. Outputs are written atomically and only after everything succeeded: a failed
+/// or interrupted run leaves no file behind and existing outputs untouched.
+/// @throw InputError, IoError (bad input or output), InterruptedError (Ctrl-C).
+nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* interrupter,
+    JobNotes* notes = nullptr);
+
+/// The SPEC §8 summary of a mesh: counts, topology and {min, max, mean, rms} of every
+/// per-vertex measure present.
+nlohmann::json summarizeMesh(const Mesh& mesh);
+
+} // namespace isouq::nodes
