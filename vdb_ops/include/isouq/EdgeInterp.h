@@ -265,12 +265,17 @@ inline void splitHalf(const double* b, double* left, double* right)
 inline void isolateRoots(const double* a, const double* b, double lo, double hi, int depth,
     double tol, RootList& roots)
 {
-    int changes = 0, first = -1, last = -1;
-    for (int j = 0; j < 6; ++j) {
-        if (b[j] == 0.0) continue;
-        if (last >= 0 && (b[j] > 0.0) != (b[last] > 0.0)) ++changes;
-        if (first < 0) first = j;
-        last = j;
+    int changes = 0, first = 0, last = 5;
+    if (b[0] != 0.0 && b[1] != 0.0 && b[2] != 0.0 && b[3] != 0.0 && b[4] != 0.0 && b[5] != 0.0) {
+        for (int j = 0; j < 5; ++j) changes += (b[j] > 0.0) != (b[j + 1] > 0.0);
+    } else { // exact zeros do not count (Descartes)
+        first = last = -1;
+        for (int j = 0; j < 6; ++j) {
+            if (b[j] == 0.0) continue;
+            if (last >= 0 && (b[j] > 0.0) != (b[last] > 0.0)) ++changes;
+            if (first < 0) first = j;
+            last = j;
+        }
     }
     if (changes == 0) return;
     if (changes == 1) {
@@ -294,13 +299,12 @@ inline void isolateRoots(const double* a, const double* b, double lo, double hi,
 /// Monomial to degree-5 Bernstein coefficients on [0,1]: b_j = sum_{l<=j} C(j,l)/C(5,l) a_l.
 inline void toBernstein(const double* a, double* b)
 {
-    static constexpr double sBinom[6][6] = {{1, 0, 0, 0, 0, 0}, {1, 1, 0, 0, 0, 0},
-        {1, 2, 1, 0, 0, 0}, {1, 3, 3, 1, 0, 0}, {1, 4, 6, 4, 1, 0}, {1, 5, 10, 10, 5, 1}};
-    for (int j = 0; j < 6; ++j) {
-        double sum = 0.0;
-        for (int l = 0; l <= j; ++l) sum += sBinom[j][l] / sBinom[5][l] * a[l];
-        b[j] = sum;
-    }
+    b[0] = a[0];
+    b[1] = a[0] + 0.2 * a[1];
+    b[2] = a[0] + 0.4 * a[1] + 0.1 * a[2];
+    b[3] = a[0] + 0.6 * a[1] + 0.3 * a[2] + 0.1 * a[3];
+    b[4] = a[0] + 0.8 * a[1] + 0.6 * a[2] + 0.4 * a[3] + 0.2 * a[4];
+    b[5] = a[0] + a[1] + a[2] + a[3] + a[4] + a[5];
 }
 
 /// The crossing of p = k on [0,1]: every root of N, then the median (Fuhrmann et al. 2015, as
