@@ -12,6 +12,8 @@
 #include "isouq/MarchingCubes.h"
 #include "isouq/McTables.h"
 
+#include "MeshVertices.h"
+
 #include <openvdb/thread/Threading.h>
 #include <openvdb/tools/Morphology.h>
 
@@ -109,6 +111,7 @@ public:
 
     int index(int x, int y, int z) const { return ((x - mLo) * mWidth + (y - mLo)) * mWidth + (z - mLo); }
     float value(int x, int y, int z) const { return mValues[index(x, y, z)]; }
+    bool isActive(int x, int y, int z) const { return (activeRow(x, y) >> (z - mLo)) & 1u; }
 
     /// Which side of the isovalue the 8^3 region at @a origin lies on: a cheap summary that lets
     /// a block whose whole neighbourhood is on one side be skipped without gathering it.
@@ -306,70 +309,17 @@ void countBlock(const BlockScratch<TreeT>& s, BlockRecord& record)
     record.vertexCount = total;
 }
 
-/// Output columns the fill pass writes into (null when not requested).
-struct VertexColumns {
-    openvdb::Vec3s* positions = nullptr;
-    std::int32_t* edgeI = nullptr;
-    std::int32_t* edgeJ = nullptr;
-    std::int32_t* edgeK = nullptr;
-    std::uint8_t* edgeAxis = nullptr;
-    float* tLinear = nullptr;
-};
-
-/// Index-to-world map, applied without a virtual call when the transform is affine.
-class WorldMap {
-public:
-    explicit WorldMap(const openvdb::math::Transform& xform) : mTransform(xform)
-    {
-        mAffine = xform.isLinear();
-        if (mAffine) mMatrix = xform.baseMap()->getAffineMap()->getMat4();
-    }
-    openvdb::Vec3s operator()(const openvdb::Vec3d& ijk) const
-    {
-        return openvdb::Vec3s(mAffine ? mMatrix.transform(ijk) : mTransform.indexToWorld(ijk));
-    }
-    /// Row-major, column-vector convention (Mesh::indexToWorld).
-    std::array<double, 16> rowMajor() const
-    {
-        openvdb::Mat4d m = mAffine ? mMatrix : openvdb::Mat4d::identity();
-        std::array<double, 16> out{};
-        for (int r = 0; r < 4; ++r)
-            for (int c = 0; c < 4; ++c) out[4 * r + c] = m(c, r); // OpenVDB multiplies row vectors
-        return out;
-    }
-
-private:
-    const openvdb::math::Transform& mTransform;
-    bool mAffine = false;
-    openvdb::Mat4d mMatrix;
-};
-
+/// Writes the block's vertices at @a offset, in the order of the bits of its edge mask.
 template <typename TreeT>
 void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const BlockRecord& record,
-    std::size_t offset, float isovalue, const WorldMap& toWorld, const VertexColumns& out)
+    std::size_t offset, const VertexContext& context, const VertexColumns& out)
 {
     std::size_t n = offset;
     for (int w = 0; w < kWords; ++w) {
         for (std::uint64_t bits = record.edgeMask[w]; bits; bits &= bits - 1) {
             const int bit = 64 * w + __builtin_ctzll(bits);
-            const int voxel = bit / 3, axis = bit % 3;
-            const int x = voxel >> 6, y = (voxel >> 3) & 7, z = voxel & 7;
-            const float f0 = s.value(x, y, z);
-            const float f1 = s.value(x + (axis == 0), y + (axis == 1), z + (axis == 2));
-            // SPEC §2 linear crossing, always measured from the lower end of the edge.
-            const float t = std::clamp((isovalue - f0) / (f1 - f0), 0.0f, 1.0f);
-            const Coord ijk = origin.offsetBy(x, y, z);
-            openvdb::Vec3d p(ijk[0], ijk[1], ijk[2]);
-            p[axis] += double(t);
-            out.positions[n] = toWorld(p);
-            if (out.edgeI) {
-                out.edgeI[n] = ijk[0];
-                out.edgeJ[n] = ijk[1];
-                out.edgeK[n] = ijk[2];
-                out.edgeAxis[n] = std::uint8_t(axis);
-                out.tLinear[n] = t;
-            }
-            ++n;
+            const int voxel = bit / 3;
+            writeVertex(s, origin, voxel >> 6, (voxel >> 3) & 7, voxel & 7, bit % 3, n++, context, out);
         }
     }
 }
@@ -465,7 +415,8 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     buildBlockSet(grid.tree(), blocks, settings.threaded);
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
-    const int halo = 1;
+    // Linear crossings read one voxel beyond the block; high-order stencils three (SPEC §2).
+    const int halo = settings.uncertainty ? 3 : 1;
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(
         std::cref(grid.tree()), std::cref(blocks.index), halo);
     std::atomic<std::size_t> done{0};
@@ -504,16 +455,9 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     mesh.indexToWorld = toWorld.rowMajor();
     mesh.positions.resize(vertexOffsets[blockCount]);
     mesh.triangles.resize(triangleOffsets[blockCount]);
-    VertexColumns columns;
-    columns.positions = mesh.positions.data();
-    if (provenance) {
-        const std::size_t n = mesh.positions.size();
-        columns.edgeI = mesh.vertexAttributes.add<std::int32_t>("edge_i", n).data();
-        columns.edgeJ = mesh.vertexAttributes.add<std::int32_t>("edge_j", n).data();
-        columns.edgeK = mesh.vertexAttributes.add<std::int32_t>("edge_k", n).data();
-        columns.edgeAxis = mesh.vertexAttributes.add<std::uint8_t>("edge_axis", n).data();
-        columns.tLinear = mesh.vertexAttributes.add<float>("t_linear", n).data();
-    }
+    const VertexColumns columns = VertexColumns::allocate(mesh, provenance, settings);
+    const VertexContext context{isovalue, toWorld, grid.transform().voxelSize(), bounds,
+        settings.stencil, settings.method, settings.uncertainty};
 
     // Fill pass.
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
@@ -521,7 +465,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
         const Coord& origin = blocks.origins[b];
         BlockScratch<TreeT>& s = scratch.local();
         s.gatherAndClassify(origin, isovalue, bounds);
-        fillVertices(s, origin, records[b], vertexOffsets[b], isovalue, toWorld, columns);
+        fillVertices(s, origin, records[b], vertexOffsets[b], context, columns);
         if (records[b].triangleCount == 0) return;
         std::int32_t neighbours[2][2][2];
         for (int dx = 0; dx < 2; ++dx)

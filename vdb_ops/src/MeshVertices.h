@@ -1,0 +1,183 @@
+// isouq (internal): what the mesher writes per vertex (SPEC §6): the primary method's position,
+// provenance, every method's crossing (paper sec. 3.2-3.4, SPEC §2), the closed-form estimates
+// (paper sec. 4.1, SPEC §3) and the method differences. Used by MarchingCubes.cc only.
+#pragma once
+
+#include "isouq/EdgeInterp.h"
+#include "isouq/ErrorEstimate.h"
+#include "isouq/MarchingCubes.h"
+
+#include <openvdb/math/Transform.h>
+
+#include <algorithm>
+#include <array>
+#include <optional>
+
+namespace isouq::mc_internal {
+
+/// Index-to-world map, applied without a virtual call when the transform is affine.
+class WorldMap {
+public:
+    explicit WorldMap(const openvdb::math::Transform& xform) : mTransform(xform)
+    {
+        mAffine = xform.isLinear();
+        if (mAffine) mMatrix = xform.baseMap()->getAffineMap()->getMat4();
+    }
+    openvdb::Vec3s operator()(const openvdb::Vec3d& ijk) const
+    {
+        return openvdb::Vec3s(mAffine ? mMatrix.transform(ijk) : mTransform.indexToWorld(ijk));
+    }
+    /// Row-major, column-vector convention (Mesh::indexToWorld).
+    std::array<double, 16> rowMajor() const
+    {
+        const openvdb::Mat4d m = mAffine ? mMatrix : openvdb::Mat4d::identity();
+        std::array<double, 16> out{};
+        for (int r = 0; r < 4; ++r)
+            for (int c = 0; c < 4; ++c) out[4 * r + c] = m(c, r); // OpenVDB multiplies row vectors
+        return out;
+    }
+
+private:
+    const openvdb::math::Transform& mTransform;
+    bool mAffine = false;
+    openvdb::Mat4d mMatrix;
+};
+
+/// Output columns the fill pass writes into (null when not requested).
+struct VertexColumns {
+    openvdb::Vec3s* positions = nullptr;
+    std::int32_t *edgeI = nullptr, *edgeJ = nullptr, *edgeK = nullptr;
+    std::uint8_t* edgeAxis = nullptr;
+    float* tLinear = nullptr;
+    // With uncertainty:
+    float *tCubic = nullptr, *tWeno = nullptr, *tWenoPaper = nullptr;
+    std::uint8_t* order = nullptr;
+    float *errEst = nullptr, *errBound = nullptr, *errBest = nullptr, *errBestSurface = nullptr;
+    float *errEstCubic = nullptr, *errEstWeno = nullptr;
+    float *dLc = nullptr, *dLw = nullptr, *dCw = nullptr, *maxVar = nullptr;
+
+    /// Sizes the mesh's columns (positions already sized) and points at them.
+    static VertexColumns allocate(Mesh& mesh, bool provenance, const MeshSettings& settings)
+    {
+        VertexColumns c;
+        c.positions = mesh.positions.data();
+        const std::size_t n = mesh.positions.size();
+        AttributeTable& a = mesh.vertexAttributes;
+        auto addFloat = [&](const char* name) { return a.add<float>(name, n).data(); };
+        if (provenance) {
+            c.edgeI = a.add<std::int32_t>("edge_i", n).data();
+            c.edgeJ = a.add<std::int32_t>("edge_j", n).data();
+            c.edgeK = a.add<std::int32_t>("edge_k", n).data();
+            c.edgeAxis = a.add<std::uint8_t>("edge_axis", n).data();
+            c.tLinear = addFloat("t_linear");
+        }
+        if (!settings.uncertainty) return c;
+        c.tCubic = addFloat("t_cubic");
+        c.tWeno = addFloat("t_weno");
+        if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat("t_weno_paper");
+        c.order = a.add<std::uint8_t>("order", n).data();
+        c.errEst = addFloat("err_est");
+        c.errBound = addFloat("err_bound");
+        c.errBest = addFloat("err_best");
+        c.errBestSurface = addFloat("err_best_surface");
+        c.errEstCubic = addFloat("err_est_cubic");
+        c.errEstWeno = addFloat("err_est_weno");
+        c.dLc = addFloat("d_lc");
+        c.dLw = addFloat("d_lw");
+        c.dCw = addFloat("d_cw");
+        c.maxVar = addFloat("max_var");
+        return c;
+    }
+};
+
+/// What every vertex of one extraction shares.
+struct VertexContext {
+    float isovalue;
+    const WorldMap& toWorld;
+    openvdb::Vec3d spacing; ///< world length of one voxel along each index axis
+    std::optional<openvdb::CoordBBox> bounds;
+    StencilPolicy stencil;
+    EdgeMethod method;
+    bool uncertainty;
+};
+
+/// Computes and writes vertex @a n on the edge from voxel (x, y, z) of the block at @a origin
+/// along @a axis. @a s gives values (and active states) up to three voxels around the block.
+template <typename ScratchT>
+void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, int z, int axis,
+    std::size_t n, const VertexContext& ctx, const VertexColumns& out)
+{
+    const int dx = axis == 0, dy = axis == 1, dz = axis == 2;
+    const float f0 = s.value(x, y, z), f1 = s.value(x + dx, y + dy, z + dz);
+    // SPEC §2 linear crossing, always measured from the lower end of the edge.
+    const float tLinear = std::clamp((ctx.isovalue - f0) / (f1 - f0), 0.0f, 1.0f);
+    const openvdb::Coord ijk = origin.offsetBy(x, y, z);
+    float t = tLinear;
+    if (out.edgeI) {
+        out.edgeI[n] = ijk[0];
+        out.edgeJ[n] = ijk[1];
+        out.edgeK[n] = ijk[2];
+        out.edgeAxis[n] = std::uint8_t(axis);
+        out.tLinear[n] = tLinear;
+    }
+    if (ctx.uncertainty) {
+        // Stencil f_{i-2..i+3} along the edge; a voxel outside the data, or inactive under the
+        // ActiveOnly policy, is missing and the methods fall back (SPEC §1, §2).
+        std::array<float, 6> f{};
+        std::uint8_t available = 0;
+        for (int j = 0; j < 6; ++j) {
+            const int o = j - 2;
+            f[j] = s.value(x + o * dx, y + o * dy, z + o * dz);
+            const bool inData = !ctx.bounds || ctx.bounds->isInside(ijk.offsetBy(o * dx, o * dy, o * dz));
+            const bool usable = ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz);
+            if ((inData && usable) || j == 2 || j == 3) available |= std::uint8_t(1u << j);
+        }
+        const float k = ctx.isovalue, h = float(ctx.spacing[axis]);
+        const EdgeCrossing cubic = CubicEdge::crossing(f, available, k);
+        const EdgeCrossing weno = WenoEdge::crossing(f, available, k);
+        EdgeCrossing primary{tLinear, 2};
+        switch (ctx.method) {
+        case EdgeMethod::Linear: break;
+        case EdgeMethod::Cubic: primary = cubic; break;
+        case EdgeMethod::Weno: primary = weno; break;
+        case EdgeMethod::WenoPaper:
+            primary = WenoPaperEdge::crossing(f, available, k);
+            out.tWenoPaper[n] = primary.t;
+            break;
+        }
+        t = primary.t;
+        out.tCubic[n] = cubic.t;
+        out.tWeno[n] = weno.t;
+        out.order[n] = primary.order;
+        const LinearError linear = linearError(f, available, tLinear, h);
+        out.errEst[n] = linear.estimate;
+        out.errBound[n] = linear.bound;
+        const CrossingSpread spread = crossingSpread(tLinear, cubic.t, weno.t, h);
+        out.dLc[n] = spread.dLc;
+        out.dLw[n] = spread.dLw;
+        out.dCw[n] = spread.dCw;
+        out.maxVar[n] = spread.maxVar;
+        // Beyond the paper (docs/error-estimates.md): the linear error estimated by the next
+        // higher order's crossing, and its distance to the surface through the angle between
+        // the edge and the gradient (central differences at both ends, interpolated at t).
+        out.errBest[n] = spread.dLc;
+        openvdb::Vec3d gradient(0.0);
+        for (int end = 0; end < 2; ++end) {
+            const int ex = x + end * dx, ey = y + end * dy, ez = z + end * dz;
+            const openvdb::Vec3d g((s.value(ex + 1, ey, ez) - s.value(ex - 1, ey, ez)) / ctx.spacing[0],
+                (s.value(ex, ey + 1, ez) - s.value(ex, ey - 1, ez)) / ctx.spacing[1],
+                (s.value(ex, ey, ez + 1) - s.value(ex, ey, ez - 1)) / ctx.spacing[2]);
+            gradient += g * (end == 0 ? 1.0 - tLinear : double(tLinear));
+        }
+        const float cosine = edgeNormalCosine(float(gradient[axis]), float(gradient[0]),
+            float(gradient[1]), float(gradient[2]));
+        out.errBestSurface[n] = surfaceDistance(spread.dLc, cosine);
+        out.errEstCubic[n] = cubicErrorEstimate(f, available, cubic.t, h);
+        out.errEstWeno[n] = wenoErrorEstimate(f, available, weno.t, h);
+    }
+    openvdb::Vec3d p(ijk[0], ijk[1], ijk[2]);
+    p[axis] += double(t);
+    out.positions[n] = ctx.toWorld(p);
+}
+
+} // namespace isouq::mc_internal
