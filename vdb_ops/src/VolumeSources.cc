@@ -702,12 +702,14 @@ std::shared_ptr<const AnalyticField> makeFormulaField(const std::string& express
         ParserSlot probe(expression);
         probe.parser.Eval(); // parses: syntax and unknown names fail here
     } catch (const mu::ParserError& e) {
+        // muParser's message ends with its own 0-based "at position N"; say it once, 1-based.
+        const std::string message = std::regex_replace(e.GetMsg(), std::regex(" at position [0-9]+\\.?$"), "");
         std::string where;
         if (e.GetPos() >= 0) {
-            where = " at position " + std::to_string(e.GetPos() + 1)
+            where = " at character " + std::to_string(std::min<std::size_t>(e.GetPos(), expression.size()) + 1)
                 + (e.GetToken().empty() ? "" : " ('" + e.GetToken() + "')");
         }
-        throw InputError("cannot parse formula '" + expression + "'" + where + ": " + e.GetMsg());
+        throw InputError("cannot parse formula '" + expression + "'" + where + ": " + message);
     }
     auto parsers = std::make_shared<tbb::enumerable_thread_specific<std::unique_ptr<ParserSlot>>>();
     auto field = std::make_shared<AnalyticField>();
