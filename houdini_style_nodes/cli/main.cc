@@ -1,6 +1,7 @@
 // isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
 #include "ProgressInterrupter.h"
+#include "ValidateCommand.h"
 
 #include <isouq/MeshIO.h>
 #include <isouq/nodes/MeshJob.h>
@@ -132,6 +133,9 @@ int main(int argc, char** argv)
     demo->footer("\nMeshes the Teardrop field (64^3, k = -0.001) with every method and estimate and\n"
                  "writes DIR/teardrop.ply and DIR/teardrop.summary.json.\n");
 
+    int validateStatus = 0;
+    isouq::cli::addValidateCommand(app, validateStatus);
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::CallForHelp& e) {
@@ -140,6 +144,9 @@ int main(int argc, char** argv)
         return app.exit(e);
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
+    } catch (const CLI::RuntimeError& e) {
+        std::fprintf(stderr, "isouq: error: %s\n", e.what());
+        return e.get_exit_code();
     } catch (const CLI::ParseError& e) {
         std::fprintf(stderr, "isouq: error: %s (see 'isouq --help')\n", e.what());
         return kExitBadInput;
@@ -160,6 +167,7 @@ int main(int argc, char** argv)
             job.summaryPath = (std::filesystem::path(demoDir) / "teardrop.summary.json").string();
             return runJob(job, quiet);
         }
+        return validateStatus;
     } catch (const isouq::InterruptedError&) {
         std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
         return kExitInterrupted;
