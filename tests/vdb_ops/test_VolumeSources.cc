@@ -1,5 +1,6 @@
 // Tests for isouq/VolumeSources.h. Truths: bytes written or read directly by the test, hand
 // formulas, brute force over every edge of the dense array, the data README's Otsu values.
+#include <isouq/Diagnostics.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/VolumeSources.h>
 
@@ -582,4 +583,26 @@ TEST_CASE("VolumeSources: error for a bad resolution or domain", "[sources][erro
     r = request("formula:x");
     r.domain = std::make_pair(1.0, -1.0);
     CHECK_THAT(inputError(r), Contains("--domain"));
+}
+
+TEST_CASE("VolumeSources: a NaN in a float32 raw stays in a leaf for the input checks",
+    "[sources][raw][diagnostics]")
+{
+    TempDir dir;
+    std::vector<unsigned char> bytes;
+    for (int n = 0; n < 27; ++n) {
+        const float v = n == 13 ? std::numeric_limits<float>::quiet_NaN() : float(n % 3); // x
+        std::uint32_t bits;
+        std::memcpy(&bits, &v, 4);
+        for (int b = 0; b < 4; ++b) bytes.push_back(static_cast<unsigned char>(bits >> (8 * b)));
+    }
+    const std::string path = dir / "nan_3x3x3_float32.raw";
+    writeBytes(path, bytes);
+    const KeepBlocks keep = GENERATE(KeepBlocks::Crossing, KeepBlocks::CrossingOrHidden,
+        KeepBlocks::NonConstant);
+    const isouq::LoadedVolume v = isouq::loadVolume(request(path, 1.5f, keep));
+    CHECK(v.keptBlocks == 1);
+    CHECK(std::isnan(v.grid->tree().getValue(Coord(1, 1, 1))));
+    CHECK_THAT(isouq::checkScalarVolume(*v.grid, v.isovalue),
+        Contains("1 active non-finite") && Contains("[1, 1, 1]"));
 }

@@ -220,6 +220,7 @@ struct SparseResult {
 /// Whether a block whose dilation by kHalo spans [lo, hi] becomes a leaf.
 bool keepBlock(KeepBlocks rule, double lo, double hi, double k)
 {
+    if (!(std::isfinite(lo) && std::isfinite(hi))) return true; // non-finite data: keep to report
     switch (rule) {
     case KeepBlocks::Crossing: return lo < k && hi >= k;
     case KeepBlocks::CrossingOrHidden: {
