@@ -1,0 +1,1 @@
+// being written: hidden features (issue 4)

@@ -1,0 +1,1 @@
+// being written: validation against analytic truths (issue 3)
