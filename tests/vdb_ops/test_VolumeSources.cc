@@ -10,6 +10,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -605,4 +606,29 @@ TEST_CASE("VolumeSources: a NaN in a float32 raw stays in a leaf for the input c
     CHECK(std::isnan(v.grid->tree().getValue(Coord(1, 1, 1))));
     CHECK_THAT(isouq::checkScalarVolume(*v.grid, v.isovalue),
         Contains("1 active non-finite") && Contains("[1, 1, 1]"));
+}
+
+TEST_CASE("VolumeSources: meshes of the sparse grid equal meshes of the dense one",
+    "[sources][sparse][mesh][data]")
+{
+    const std::string input = GENERATE(std::string("field:tangle"), std::string("field:marschner-lobb"),
+        dataPath("engine_256x256x128_uint8.raw"));
+    const bool uncertainty = GENERATE(false, true);
+    std::vector<std::array<float, 3>> positions[2];
+    std::size_t triangles[2];
+    for (int dense = 0; dense < 2; ++dense) {
+        VolumeRequest r = request(input, std::nullopt, dense ? KeepBlocks::All : KeepBlocks::Crossing);
+        const isouq::LoadedVolume v = isouq::loadVolume(r);
+        isouq::MeshSettings settings;
+        settings.isovalue = v.isovalue;
+        settings.uncertainty = uncertainty;
+        const isouq::Mesh mesh = isouq::extractIsosurface(*v.grid, settings);
+        for (const openvdb::Vec3s& p : mesh.positions) positions[dense].push_back({p[0], p[1], p[2]});
+        std::sort(positions[dense].begin(), positions[dense].end());
+        triangles[dense] = mesh.triangles.size();
+    }
+    INFO(input << (uncertainty ? " with uncertainty" : ""));
+    CHECK(!positions[0].empty());
+    CHECK(triangles[0] == triangles[1]);
+    CHECK(positions[0] == positions[1]); // bit for bit, as multisets
 }
