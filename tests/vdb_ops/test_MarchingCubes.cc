@@ -329,3 +329,63 @@ TEST_CASE("MarchingCubes: bucky at k = 51, a value the scan holds, has no crack 
     CHECK(inner == 0);
     CHECK(nonManifold == 0);
 }
+
+TEST_CASE("MarchingCubes: bricks joined by source edge equal the whole mesh (SPEC §9)", "[mc][bricks]")
+{
+    openvdb::initialize();
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(1.0f, {0.05f, -0.1f, 0.02f}, 0.03f);
+    MeshSettings settings;
+    settings.uncertainty = true;
+    using Key = std::array<std::int32_t, 4>;
+    auto keysOf = [](const Mesh& m) {
+        const auto& i = *m.vertexAttributes.find<std::int32_t>("edge_i");
+        const auto& j = *m.vertexAttributes.find<std::int32_t>("edge_j");
+        const auto& k = *m.vertexAttributes.find<std::int32_t>("edge_k");
+        const auto& a = *m.vertexAttributes.find<std::uint8_t>("edge_axis");
+        std::vector<Key> keys(m.positions.size());
+        for (std::size_t v = 0; v < keys.size(); ++v) keys[v] = {i[v], j[v], k[v], a[v]};
+        return keys;
+    };
+    // Triangles as edge-key triples, rotated to start at the smallest key (orientation kept).
+    using Tri = std::array<Key, 3>;
+    auto trianglesOf = [&](const Mesh& m, std::map<Key, openvdb::Vec3s>& positions, std::map<Key, float>& errors) {
+        const std::vector<Key> keys = keysOf(m);
+        const auto& err = *m.vertexAttributes.find<float>("err_est");
+        std::vector<Tri> tris;
+        for (const auto& t : m.triangles) {
+            Tri tri{keys[t[0]], keys[t[1]], keys[t[2]]};
+            std::rotate(tri.begin(), std::min_element(tri.begin(), tri.end()), tri.end());
+            tris.push_back(tri);
+            for (int c = 0; c < 3; ++c) {
+                const auto [it, fresh] = positions.emplace(keys[t[c]], m.positions[t[c]]);
+                CHECK(it->second == m.positions[t[c]]); // a shared edge has one position
+                errors[keys[t[c]]] = err[t[c]];
+                (void)fresh;
+            }
+        }
+        return tris;
+    };
+    std::map<Key, openvdb::Vec3s> wholePositions, brickPositions;
+    std::map<Key, float> wholeErrors, brickErrors;
+    std::vector<Tri> whole = trianglesOf(extractIsosurface(*grid, settings), wholePositions, wholeErrors);
+    std::vector<Tri> joined;
+    const openvdb::CoordBBox box = grid->evalActiveVoxelBoundingBox();
+    const Coord cut(3, -5, 11); // not aligned with leaves
+    for (int octant = 0; octant < 8; ++octant) {
+        Coord lo = box.min().offsetBy(-2), hi = box.max().offsetBy(2);
+        for (int a = 0; a < 3; ++a) {
+            if (octant >> a & 1) lo[a] = cut[a];
+            else hi[a] = cut[a] - 1;
+        }
+        MeshSettings brick = settings;
+        brick.brick = openvdb::CoordBBox(lo, hi);
+        const std::vector<Tri> part = trianglesOf(extractIsosurface(*grid, brick), brickPositions, brickErrors);
+        joined.insert(joined.end(), part.begin(), part.end());
+    }
+    std::sort(whole.begin(), whole.end());
+    std::sort(joined.begin(), joined.end());
+    CHECK(whole.size() > 10000);
+    CHECK(whole == joined);
+    CHECK(wholePositions == brickPositions);
+    CHECK(wholeErrors == brickErrors);
+}

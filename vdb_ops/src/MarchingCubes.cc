@@ -145,9 +145,9 @@ public:
     /// Copies values and active states of [lo, lo + width)^3 around @a origin, one leaf probe
     /// per neighbouring block (a missing leaf is a constant tile or background), and classifies
     /// the cells with minimum corner in [-1, 8)^3: a cell is a candidate when it is meshed (an
-    /// active corner, all corners inside the data bounds if any) and its corners straddle k.
+    /// active corner, minimum corner inside @a cellBox if given) and its corners straddle k.
     /// Returns false when no cell crosses.
-    bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& bounds)
+    bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
     {
         std::fill(mInsideRows.begin(), mInsideRows.end(), 0u);
         std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
@@ -155,7 +155,7 @@ public:
             for (int by = firstBlock(); by <= lastBlock(); ++by)
                 for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
                     gatherNeighbour(origin, bx, by, bz, isovalue);
-        return classify(origin, bounds);
+        return classify(origin, cellBox);
     }
 
     /// Bits z + 1 of the candidate cells (x, y, -1..7), for x, y in [-1, 8).
@@ -223,17 +223,17 @@ private:
         }
     }
 
-    bool classify(const Coord& origin, const std::optional<CoordBBox>& bounds)
+    bool classify(const Coord& origin, const std::optional<CoordBBox>& cellBox)
     {
         // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1; shift so cell z = -1 is bit 0.
         const int shift = -1 - mLo;
         std::uint32_t cellMask = (1u << (kBlockDim + 1)) - 1u;
         int xLo = -1, xHi = kBlockDim - 1, yLo = -1, yHi = kBlockDim - 1;
-        if (bounds) { // cells whose corners all lie inside the bounds: min corner in [min, max - 1]
-            const Coord lo = bounds->min() - origin, hi = bounds->max() - origin;
-            xLo = std::max(xLo, lo[0]), xHi = std::min(xHi, hi[0] - 1);
-            yLo = std::max(yLo, lo[1]), yHi = std::min(yHi, hi[1] - 1);
-            const int zLo = std::max(-1, lo[2]), zHi = std::min(kBlockDim - 1, hi[2] - 1);
+        if (cellBox) {
+            const Coord lo = cellBox->min() - origin, hi = cellBox->max() - origin;
+            xLo = std::max(xLo, lo[0]), xHi = std::min(xHi, hi[0]);
+            yLo = std::max(yLo, lo[1]), yHi = std::min(yHi, hi[1]);
+            const int zLo = std::max(-1, lo[2]), zHi = std::min(kBlockDim - 1, hi[2]);
             cellMask = zLo > zHi ? 0u : (((2u << (zHi + 1)) - 1u) & ~((1u << (zLo + 1)) - 1u));
         }
         bool any = false;
@@ -363,6 +363,20 @@ std::optional<CoordBBox> dataBoundsOf(const GridT& grid, const MeshSettings& set
     return CoordBBox(Coord(lo->value()), Coord(hi->value()));
 }
 
+/// The box of minimum corners of the cells that may be meshed: all corners inside the data
+/// bounds (min corner in [min, max - 1]), and min corner inside the brick (SPEC §9).
+inline std::optional<CoordBBox> meshedCellBox(const std::optional<CoordBBox>& dataBounds,
+    const std::optional<CoordBBox>& brick)
+{
+    std::optional<CoordBBox> box;
+    if (dataBounds) box = CoordBBox(dataBounds->min(), dataBounds->max().offsetBy(-1));
+    if (brick) {
+        if (box) box->intersect(*brick);
+        else box = brick;
+    }
+    return box;
+}
+
 /// Runs @a body(i) for every block in parallel (or serially), polling the interrupter.
 template <typename Body>
 void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupter* interrupter,
@@ -400,6 +414,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
 
     const float isovalue = settings.isovalue;
     const std::optional<CoordBBox> bounds = dataBoundsOf(grid, settings);
+    const std::optional<CoordBBox> cellBox = meshedCellBox(bounds, settings.brick);
     const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
     const bool flip = settings.orientation == Orientation::TowardsHigher ||
                       (settings.orientation == Orientation::Auto && levelSet);
@@ -433,7 +448,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
         if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
-        if (s.gatherAndClassify(blocks.origins[b], isovalue, bounds)) countBlock(s, records[b]);
+        if (s.gatherAndClassify(blocks.origins[b], isovalue, cellBox)) countBlock(s, records[b]);
     });
 
     // Serial prefix sums: each block's place in the output, independent of the thread count.
@@ -464,7 +479,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
         if (records[b].vertexCount == 0 && records[b].triangleCount == 0) return;
         const Coord& origin = blocks.origins[b];
         BlockScratch<TreeT>& s = scratch.local();
-        s.gatherAndClassify(origin, isovalue, bounds);
+        s.gatherAndClassify(origin, isovalue, cellBox);
         fillVertices(s, origin, records[b], vertexOffsets[b], context, columns);
         if (records[b].triangleCount == 0) return;
         std::int32_t neighbours[2][2][2];

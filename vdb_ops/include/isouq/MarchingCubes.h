@@ -48,6 +48,10 @@ struct MeshSettings {
     Orientation orientation = Orientation::Auto;
     /// The box of real data; when unset it is read from the grid metadata if present.
     std::optional<openvdb::CoordBBox> dataBounds;
+    /// Mesh only the cells whose minimum corner lies in this box (SPEC §9 bricks). The result
+    /// holds every vertex those cells use, wherever its edge is owned; meshes of the bricks of
+    /// any partition, joined by source edge (edge_i/j/k/axis), equal the mesh of the whole.
+    std::optional<openvdb::CoordBBox> brick;
     bool threaded = true;
 };
 
