@@ -1,0 +1,2 @@
+#!/usr/bin/python3
+"""Plots of `isouq validate` (placeholder, being written)."""
