@@ -54,6 +54,29 @@ for r in results:
           f"**{median[c] / base:.2f}** |")
 PY
 echo
+echo "Phases (median of 5 runs; isouq's --summary timings_ms, vdb_tool's own report):"
+echo
+for i in 1 2 3 4 5; do
+    "$isouq" mesh "$data/sphere.vdb" -o "$out/a.ply" --linear-only -q --summary "$out/s$i.json" >/dev/null
+    vdb_tool -read "$data/sphere.vdb" -l2m adapt=0 -write "$out/b.ply" 2>"$out/v$i.txt" >/dev/null
+done
+/usr/bin/python3 - "$out" <<'PY'
+import json, re, statistics, sys
+from pathlib import Path
+out = Path(sys.argv[1])
+isouq = [json.load(open(out / f"s{i}.json"))["timings_ms"] for i in range(1, 6)]
+tool = [[float(x) for x in re.findall(r"completed in ([0-9.]+) milliseconds", (out / f"v{i}.txt").read_text())]
+        for i in range(1, 6)]
+med = lambda xs: statistics.median(xs)
+print("| isouq phase | ms | vdb_tool phase | ms |\n|---|--:|---|--:|")
+names = ["read", "SDF -> mesh", "write"]
+rows = [(p, med([t[p] for t in isouq])) for p in isouq[0]]
+for i in range(max(len(rows), len(names))):
+    a = f"{rows[i][0]} | {rows[i][1]:.1f}" if i < len(rows) else " | "
+    b = f"{names[i]} | {med([t[i] for t in tool]):.1f}" if i < len(names) and all(len(t) > i for t in tool) else " | "
+    print(f"| {a} | {b} |")
+PY
+echo
 echo "Output sizes: isouq --linear-only $(stat -c %s "$out/a.ply") B (positions + provenance," \
      "triangles), vdb_tool $(stat -c %s "$out/b.ply") B (positions, quads), isouq all methods" \
      "$(stat -c %s "$out/c.ply") B. Load average after: $(cut -d' ' -f1-3 /proc/loadavg)."
