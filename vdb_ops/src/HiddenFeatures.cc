@@ -1,1 +1,780 @@
-// being written: hidden features (issue 4)
+// isouq: marching cubes with hidden features (paper sec. 4.2; SPEC §4, §6; docs/hidden-features.md).
+//
+// Passes, each parallel over a list whose order depends only on the grid:
+//   detect:     per 8^3 block holding a meshed cell, gather values and active states with a halo,
+//               apply the slope rule to the 12 edges of each cell, and keep the flagged cells
+//               whose tricubic crosses k (and that pass the filter) as the refined set R;
+//   refine:     per refined cell, marching cubes on its m^3 subcells (tricubic corner values);
+//   transition: per unrefined cell sharing a face or an edge with R (the set T), the loops of its
+//               faces' segments, each fanned to its centre (the paper's fan patch);
+//   merge:      the standard mesh's triangles of cells outside R and T, then the new triangles;
+//               new vertices are keyed by their subcell edge on the fine lattice m * voxel + sub,
+//               sorted and shared, so neighbours meet exactly and no hash map is needed.
+// Why no cracks: a face shared by R and T is cut by the same subface rule on the same tricubic
+// values on both sides; a face of T with a refined edge is cut by the face-consistent rule
+// (McTables.h) on the crossings of that edge's subdivision; a face between T and an ordinary
+// cell has no refined edge (else that cell would be in T) and is cut exactly as marching cubes
+// cuts it. Every crossing is the start of one face segment and the end of another, so the
+// segments of a transition cell form closed loops.
+#include "isouq/HiddenFeatures.h"
+#include "isouq/McTables.h"
+#include "isouq/Tricubic.h"
+
+#include <openvdb/thread/Threading.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <tuple>
+
+namespace isouq {
+namespace hidden_internal {
+
+using openvdb::Coord;
+using openvdb::CoordBBox;
+using openvdb::Vec3d;
+using Accessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
+
+constexpr int kBlock = 8;
+constexpr int kMaxSubdivisions = 64;
+
+/// A vertex made or used by refinement. kind 0..2: crossing of the subcell edge along that
+/// axis from fine-lattice point p (m * voxel + sub); kCoarse + axis: the standard vertex of
+/// the grid edge from voxel p; kCentre + l: centre of loop l of transition cell p.
+struct Key {
+    Coord p;
+    std::uint16_t kind;
+    bool operator<(const Key& o) const { return p < o.p || (p == o.p && kind < o.kind); }
+    bool operator==(const Key& o) const { return p == o.p && kind == o.kind; }
+};
+constexpr std::uint16_t kCoarse = 3, kCentre = 6;
+
+struct FineVertex {
+    Key key;
+    Vec3d index; // index-space position
+};
+
+/// What one chunk of refined or transition cells adds. Triangles face from inside (>= k)
+/// towards outside, as the case tables' do.
+struct Patch {
+    std::vector<FineVertex> vertices; // may repeat a key another cell also writes (same bits)
+    std::vector<std::array<Key, 3>> triangles;
+    std::vector<Key> centres;                 // transition loops: centre key,
+    std::vector<std::uint32_t> memberOffsets; // and members[memberOffsets[i]..[i+1])
+    std::vector<Key> members;
+};
+
+inline bool contains(const std::vector<Coord>& sorted, const Coord& c)
+{
+    return std::binary_search(sorted.begin(), sorted.end(), c);
+}
+
+/// Runs body(i) for i in [0, count) in parallel (or serially), polling the interrupter.
+template <typename Body>
+void forEach(std::size_t count, std::size_t grain, bool threaded,
+    openvdb::util::NullInterrupter* interrupter, Body&& body)
+{
+    std::atomic<bool> stop{false};
+    auto range = [&](const tbb::blocked_range<std::size_t>& r) {
+        if (stop.load(std::memory_order_relaxed)) return;
+        if (openvdb::util::wasInterrupted(interrupter)) {
+            stop = true;
+            openvdb::thread::cancelGroupExecution();
+            return;
+        }
+        for (std::size_t i = r.begin(); i < r.end(); ++i) body(i);
+    };
+    const tbb::blocked_range<std::size_t> all(0, count, std::max<std::size_t>(grain, 1));
+    if (threaded) tbb::parallel_for(all, range);
+    else range(all);
+    if (stop) throw InterruptedError();
+}
+
+std::optional<CoordBBox> dataBoundsOf(const openvdb::FloatGrid& grid, const MeshSettings& settings)
+{
+    if (settings.dataBounds) return settings.dataBounds;
+    auto lo = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMinMeta);
+    auto hi = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
+    if (!lo || !hi) return std::nullopt;
+    return CoordBBox(Coord(lo->value()), Coord(hi->value()));
+}
+
+/// Origins of the 8^3 blocks that own a cell with an active corner, in tree order: blocks of
+/// leaves with an active voxel and their - neighbours, and the blocks along active tiles' borders
+/// (a tile's interior is constant: nothing turns there).
+std::vector<Coord> blockOrigins(const openvdb::FloatTree& tree)
+{
+    openvdb::BoolTree coarse(false);
+    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+        if (leaf->isEmpty()) continue;
+        const Coord b = leaf->origin() >> 3;
+        coarse.fill(CoordBBox(b.offsetBy(-1), b), true, true);
+    }
+    auto tile = tree.cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile) {
+        CoordBBox box;
+        tile.getBoundingBox(box);
+        const Coord lo = box.min() >> 3, hi = box.max() >> 3;
+        coarse.fill(CoordBBox(lo.offsetBy(-1), hi.offsetBy(1)), true, true);
+        if (hi[0] - lo[0] >= 2 && hi[1] - lo[1] >= 2 && hi[2] - lo[2] >= 2)
+            coarse.fill(CoordBBox(lo.offsetBy(1), hi.offsetBy(-1)), false, false);
+    }
+    coarse.voxelizeActiveTiles();
+    std::vector<Coord> origins;
+    for (auto v = coarse.cbeginValueOn(); v; ++v) origins.push_back(v.getCoord() << 3);
+    return origins;
+}
+
+/// Values and active states of the voxels [-1, 10)^3 around a block: every corner and tricubic
+/// stencil of the block's cells and of their neighbours. One leaf probe per neighbouring block.
+class Window {
+public:
+    static constexpr int kLo = -1, kWidth = 11;
+
+    void gather(const Accessor& acc, const Coord& origin)
+    {
+        for (int bx = -1; bx <= 1; ++bx)
+            for (int by = -1; by <= 1; ++by)
+                for (int bz = -1; bz <= 1; ++bz) gatherBlock(acc, origin, bx, by, bz);
+    }
+    float value(int x, int y, int z) const { return mValue[index(x, y, z)]; }
+    bool active(int x, int y, int z) const { return mActive[index(x, y, z)]; }
+    /// An active corner: the cell at (x, y, z) is meshed (SPEC §1).
+    bool meshed(int x, int y, int z) const
+    {
+        for (const auto& o : kMcCornerOffset)
+            if (active(x + o.x, y + o.y, z + o.z)) return true;
+        return false;
+    }
+
+private:
+    static int index(int x, int y, int z) { return ((x - kLo) * kWidth + (y - kLo)) * kWidth + (z - kLo); }
+
+    void gatherBlock(const Accessor& acc, const Coord& origin, int bx, int by, int bz)
+    {
+        const int lo[3] = {std::max(kLo, 8 * bx), std::max(kLo, 8 * by), std::max(kLo, 8 * bz)};
+        const int hi[3] = {std::min(kLo + kWidth, 8 * bx + 8), std::min(kLo + kWidth, 8 * by + 8),
+            std::min(kLo + kWidth, 8 * bz + 8)};
+        if (lo[0] >= hi[0] || lo[1] >= hi[1] || lo[2] >= hi[2]) return;
+        const Coord nOrigin = origin.offsetBy(8 * bx, 8 * by, 8 * bz);
+        if (const auto* leaf = acc.probeConstLeaf(nOrigin)) {
+            for (int x = lo[0]; x < hi[0]; ++x)
+                for (int y = lo[1]; y < hi[1]; ++y)
+                    for (int z = lo[2]; z < hi[2]; ++z) {
+                        const openvdb::Index n = openvdb::FloatTree::LeafNodeType::coordToOffset(
+                            Coord(x - 8 * bx, y - 8 * by, z - 8 * bz));
+                        mValue[index(x, y, z)] = leaf->getValue(n);
+                        mActive[index(x, y, z)] = leaf->isValueOn(n);
+                    }
+            return;
+        }
+        float tileValue = 0.0f;
+        const bool tileActive = acc.probeValue(nOrigin, tileValue);
+        for (int x = lo[0]; x < hi[0]; ++x)
+            for (int y = lo[1]; y < hi[1]; ++y)
+                for (int z = lo[2]; z < hi[2]; ++z) {
+                    mValue[index(x, y, z)] = tileValue;
+                    mActive[index(x, y, z)] = tileActive;
+                }
+    }
+
+    std::array<float, kWidth * kWidth * kWidth> mValue{};
+    std::array<bool, kWidth * kWidth * kWidth> mActive{};
+};
+
+/// The slope rule (SPEC §4) on the 12 edges of the cell at (x, y, z) of the window.
+bool cellTurns(const Window& w, int x, int y, int z)
+{
+    for (const McEdge& e : kMcEdges) {
+        const int ex = e.axis == 0, ey = e.axis == 1, ez = e.axis == 2;
+        const int vx = x + e.dx, vy = y + e.dy, vz = z + e.dz;
+        if (slopesTurn(w.value(vx - ex, vy - ey, vz - ez), w.value(vx, vy, vz),
+                w.value(vx + ex, vy + ey, vz + ez), w.value(vx + 2 * ex, vy + 2 * ey, vz + 2 * ez)))
+            return true;
+    }
+    return false;
+}
+
+/// Index of sub-point (p, q, r) in refineCell's output.
+inline std::size_t subIndex(int p, int q, int r, int n) { return std::size_t((p * n + q) * n + r); }
+
+/// Whether the subdivision values lie on both sides of k (the tricubic surface passes through).
+bool crosses(const std::vector<double>& sub, double k)
+{
+    bool in = false, out = false;
+    for (double v : sub) (v >= k ? in : out) = true;
+    return in && out;
+}
+
+/// The filter: some element of the cell (the cell, a face or an edge) has all its corners on one
+/// side of k and a subdivision value on the other: the tricubic shows what the corners hide.
+bool reveals(const std::vector<double>& sub, int m, double k)
+{
+    const int n = m + 1;
+    // Each axis of an element is fixed at 0, fixed at m, or free (0..m); corners are skipped.
+    for (int sx = 0; sx < 3; ++sx)
+        for (int sy = 0; sy < 3; ++sy)
+            for (int sz = 0; sz < 3; ++sz) {
+                if (sx < 2 && sy < 2 && sz < 2) continue;
+                const int s[3] = {sx, sy, sz};
+                int lo[3], hi[3], step[3];
+                for (int a = 0; a < 3; ++a) {
+                    lo[a] = s[a] == 1 ? m : 0;
+                    hi[a] = s[a] == 0 ? 0 : m;
+                    step[a] = m;
+                }
+                int corners = 0, inside = 0;
+                for (int p = lo[0]; p <= hi[0]; p += step[0])
+                    for (int q = lo[1]; q <= hi[1]; q += step[1])
+                        for (int r = lo[2]; r <= hi[2]; r += step[2]) {
+                            ++corners;
+                            inside += sub[subIndex(p, q, r, n)] >= k;
+                        }
+                if (inside != 0 && inside != corners) continue;
+                const bool cornersInside = inside != 0;
+                for (int p = lo[0]; p <= hi[0]; ++p)
+                    for (int q = lo[1]; q <= hi[1]; ++q)
+                        for (int r = lo[2]; r <= hi[2]; ++r)
+                            if ((sub[subIndex(p, q, r, n)] >= k) != cornersInside) return true;
+            }
+    return false;
+}
+
+/// The 4x4x4 voxels around the cell at @a c (Tricubic.h layout).
+void gatherStencil(const Accessor& acc, const Coord& c, float* stencil)
+{
+    for (int a = 0; a < 4; ++a)
+        for (int b = 0; b < 4; ++b)
+            for (int d = 0; d < 4; ++d) stencil[16 * a + 4 * b + d] = acc.getValue(c.offsetBy(a - 1, b - 1, d - 1));
+}
+
+/// Subdivision values of one cell and the fine lattice around it.
+struct RefinedCell {
+    Coord cell;
+    int m;
+    double k;
+    std::vector<double> sub;
+
+    double value(const Coord& local) const { return sub[subIndex(local[0], local[1], local[2], m + 1)]; }
+    bool inside(const Coord& local) const { return value(local) >= k; }
+    Coord fine(const Coord& local) const { return Coord(m * cell[0], m * cell[1], m * cell[2]) + local; }
+
+    /// The vertex on the subcell edge between neighbouring sub-points @a a and @a b (local), which
+    /// straddle k; it is written to @a patch and keyed by the edge's lower fine point.
+    Key crossing(const Coord& a, const Coord& b, Patch& patch) const
+    {
+        const bool aLower = a < b;
+        const Coord& lo = aLower ? a : b;
+        const Coord& hi = aLower ? b : a;
+        int axis = 0;
+        while (hi[axis] == lo[axis]) ++axis;
+        const double f0 = value(lo), f1 = value(hi);
+        const double t = std::clamp((k - f0) / (f1 - f0), 0.0, 1.0);
+        const Coord p = fine(lo);
+        Vec3d index(p[0], p[1], p[2]);
+        index[axis] += t;
+        const Key key{p, std::uint16_t(axis)};
+        patch.vertices.push_back(FineVertex{key, index / double(m)});
+        return key;
+    }
+};
+
+/// Marching cubes on the m^3 subcells of a refined cell (McTables.h, inside is >= k).
+void meshRefinedCell(const RefinedCell& rc, Patch& patch)
+{
+    const int m = rc.m;
+    for (int p = 0; p < m; ++p)
+        for (int q = 0; q < m; ++q)
+            for (int r = 0; r < m; ++r) {
+                const Coord base(p, q, r);
+                int cubeCase = 0;
+                for (int c = 0; c < 8; ++c) {
+                    const auto& o = kMcCornerOffset[c];
+                    cubeCase |= int(rc.inside(base.offsetBy(o.x, o.y, o.z))) << c;
+                }
+                const int count = kMcCases.triangleCount[cubeCase];
+                if (count == 0) continue;
+                std::array<Key, 12> keys;
+                const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
+                for (int e = 0; e < 12; ++e) {
+                    if (!((crossing >> e) & 1)) continue;
+                    const McEdge& edge = kMcEdges[e];
+                    const Coord a = base.offsetBy(edge.dx, edge.dy, edge.dz);
+                    Coord b = a;
+                    b[edge.axis] += 1;
+                    keys[e] = rc.crossing(a, b, patch);
+                }
+                const auto& edges = kMcCases.triangleEdges[cubeCase];
+                for (int t = 0; t < count; ++t)
+                    patch.triangles.push_back({keys[edges[3 * t]], keys[edges[3 * t + 1]], keys[edges[3 * t + 2]]});
+            }
+}
+
+inline Coord times(const Coord& c, int s) { return Coord(c[0] * s, c[1] * s, c[2] * s); }
+/// (to - from) / m: a unit step along a cell edge whose ends are in sub-point units.
+inline Coord unitStep(const Coord& from, const Coord& to, int m)
+{
+    return Coord((to[0] - from[0]) / m, (to[1] - from[1]) / m, (to[2] - from[2]) / m);
+}
+
+/// Local corner c of a cell, in sub-point units (0 or m per axis).
+inline Coord cornerLocal(int c, int m)
+{
+    const auto& o = kMcCornerOffset[c];
+    return Coord(o.x * m, o.y * m, o.z * m);
+}
+
+/// The surface of a transition cell: segments on its six faces (walked counter-clockwise from
+/// outside, each entering crossing joined to the next leaving one, McTables.h's rule), chained
+/// into loops, each fanned to its centre.
+void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined, Patch& patch)
+{
+    using mc_tables_internal::edgeBetween;
+    using mc_tables_internal::kFaceCorners;
+    const int m = rc.m;
+    const Coord& u = rc.cell;
+    bool edgeRefined[12];
+    for (int e = 0; e < 12; ++e) {
+        const McEdge& edge = kMcEdges[e];
+        const Coord v = u.offsetBy(edge.dx, edge.dy, edge.dz);
+        const int a1 = (edge.axis + 1) % 3, a2 = (edge.axis + 2) % 3;
+        edgeRefined[e] = false;
+        for (int d1 = 0; d1 < 2; ++d1)
+            for (int d2 = 0; d2 < 2; ++d2) {
+                Coord c = v;
+                c[a1] -= d1;
+                c[a2] -= d2;
+                if (c != u && contains(refined, c)) edgeRefined[e] = true;
+            }
+    }
+    struct Crossing {
+        Key key;
+        bool enters;
+    };
+    std::vector<std::pair<Key, Key>> segments;
+    auto pairUp = [&segments](const std::vector<Crossing>& walk) {
+        for (std::size_t i = 0; i < walk.size(); ++i) {
+            if (!walk[i].enters) continue;
+            for (std::size_t j = 1; j < walk.size(); ++j) {
+                const Crossing& next = walk[(i + j) % walk.size()];
+                if (!next.enters) {
+                    segments.emplace_back(walk[i].key, next.key);
+                    break;
+                }
+            }
+        }
+    };
+    std::vector<Crossing> walk;
+    for (int f = 0; f < 6; ++f) {
+        const auto& loop = kFaceCorners[std::size_t(f)];
+        Coord across = u;
+        across[f / 2] += (f % 2) ? 1 : -1;
+        if (contains(refined, across)) {
+            // A face shared with a refined cell: its m x m subfaces, walked the same way.
+            const Coord c0 = cornerLocal(loop[0], m);
+            const Coord ds = unitStep(c0, cornerLocal(loop[1], m), m), dt = unitStep(c0, cornerLocal(loop[3], m), m);
+            for (int s = 0; s < m; ++s)
+                for (int t = 0; t < m; ++t) {
+                    const Coord corner[4] = {c0 + times(ds, s) + times(dt, t), c0 + times(ds, s + 1) + times(dt, t),
+                        c0 + times(ds, s + 1) + times(dt, t + 1), c0 + times(ds, s) + times(dt, t + 1)};
+                    walk.clear();
+                    for (int i = 0; i < 4; ++i) {
+                        const Coord& a = corner[i];
+                        const Coord& b = corner[(i + 1) % 4];
+                        if (rc.inside(a) != rc.inside(b)) walk.push_back({rc.crossing(a, b, patch), rc.inside(b)});
+                    }
+                    pairUp(walk);
+                }
+            continue;
+        }
+        walk.clear();
+        for (int i = 0; i < 4; ++i) {
+            const int ca = loop[std::size_t(i)], cb = loop[std::size_t((i + 1) % 4)];
+            const int e = edgeBetween(ca, cb);
+            const Coord a = cornerLocal(ca, m), b = cornerLocal(cb, m);
+            if (edgeRefined[e]) { // the subdivision of a refined cell's edge, walked from a to b
+                const Coord step = unitStep(a, b, m);
+                for (int s = 0; s < m; ++s) {
+                    const Coord p = a + times(step, s), q = a + times(step, s + 1);
+                    if (rc.inside(p) != rc.inside(q)) walk.push_back({rc.crossing(p, q, patch), rc.inside(q)});
+                }
+            } else if (rc.inside(a) != rc.inside(b)) { // the standard vertex of this grid edge
+                const McEdge& edge = kMcEdges[std::size_t(e)];
+                walk.push_back({Key{u.offsetBy(edge.dx, edge.dy, edge.dz), std::uint16_t(kCoarse + edge.axis)},
+                    rc.inside(b)});
+            }
+        }
+        pairUp(walk);
+    }
+    // Chain the segments into loops (each key starts one segment and ends one) and fan them.
+    std::vector<bool> used(segments.size(), false);
+    std::uint16_t loopIndex = 0;
+    for (std::size_t first = 0; first < segments.size(); ++first) {
+        if (used[first]) continue;
+        const Key centre{u, std::uint16_t(kCentre + loopIndex++)};
+        patch.centres.push_back(centre);
+        for (std::size_t s = first; !used[s];) {
+            used[s] = true;
+            patch.members.push_back(segments[s].first);
+            patch.triangles.push_back({centre, segments[s].first, segments[s].second});
+            for (std::size_t n = 0; n < segments.size(); ++n)
+                if (segments[n].first == segments[s].second) {
+                    s = n;
+                    break;
+                }
+        }
+        patch.memberOffsets.push_back(std::uint32_t(patch.members.size()));
+    }
+}
+
+/// Which cell a standard triangle comes from: the one cell holding its three grid edges.
+std::optional<Coord> cellOfTriangle(const std::array<Coord, 3>& voxel, const std::array<int, 3>& axis)
+{
+    auto holds = [](const Coord& cell, const Coord& v, int a) {
+        const Coord d = v - cell;
+        for (int i = 0; i < 3; ++i)
+            if (d[i] < 0 || d[i] > 1 || (i == a && d[i] != 0)) return false;
+        return true;
+    };
+    const int a1 = (axis[0] + 1) % 3, a2 = (axis[0] + 2) % 3;
+    for (int d1 = 0; d1 < 2; ++d1)
+        for (int d2 = 0; d2 < 2; ++d2) {
+            Coord c = voxel[0];
+            c[a1] -= d1;
+            c[a2] -= d2;
+            if (holds(c, voxel[1], axis[1]) && holds(c, voxel[2], axis[2])) return c;
+        }
+    return std::nullopt;
+}
+
+} // namespace hidden_internal
+
+Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
+    const HiddenFeatureSettings& hidden, HiddenFeatureStats* statsOut, openvdb::util::NullInterrupter* interrupter)
+{
+    using namespace hidden_internal;
+    const int m = hidden.subdivisions;
+    if (m < 1 || m > kMaxSubdivisions)
+        OPENVDB_THROW(openvdb::ValueError, "hidden features: subdivisions must be between 1 and 64 (got "
+                                               + std::to_string(m) + ")");
+    if (!std::isfinite(settings.isovalue))
+        OPENVDB_THROW(openvdb::ValueError, "the isovalue must be a finite number");
+    const auto* edgeI = standard.vertexAttributes.find<std::int32_t>("edge_i");
+    const auto* edgeJ = standard.vertexAttributes.find<std::int32_t>("edge_j");
+    const auto* edgeK = standard.vertexAttributes.find<std::int32_t>("edge_k");
+    const auto* edgeAxis = standard.vertexAttributes.find<std::uint8_t>("edge_axis");
+    if (!edgeI || !edgeJ || !edgeK || !edgeAxis)
+        OPENVDB_THROW(openvdb::ValueError,
+            "hidden features: the standard mesh needs provenance (edge_i edge_j edge_k edge_axis)");
+
+    if (interrupter) interrupter->start("Hidden features");
+    struct EndGuard {
+        openvdb::util::NullInterrupter* i;
+        ~EndGuard() { if (i) i->end(); }
+    } endGuard{interrupter};
+
+    const float k = settings.isovalue;
+    const std::optional<CoordBBox> bounds = dataBoundsOf(grid, settings);
+    const bool threaded = settings.threaded;
+    const openvdb::FloatTree& tree = grid.tree();
+    tbb::enumerable_thread_specific<Accessor> accessors([&tree] { return Accessor(tree); });
+
+    // Detect (SPEC §4): per block, the slope rule on each meshed cell, then the tricubic test.
+    const std::vector<Coord> origins = blockOrigins(tree);
+    struct BlockResult {
+        std::size_t total = 0, flagged = 0;
+        std::vector<Coord> refined;
+    };
+    std::vector<BlockResult> blockResults(origins.size());
+    tbb::enumerable_thread_specific<Window> windows;
+    forEach(origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
+        const Coord& origin = origins[b];
+        Window& w = windows.local();
+        w.gather(accessors.local(), origin);
+        BlockResult& out = blockResults[b];
+        float stencil[64];
+        std::vector<double> sub;
+        for (int x = 0; x < kBlock; ++x)
+            for (int y = 0; y < kBlock; ++y)
+                for (int z = 0; z < kBlock; ++z) {
+                    const Coord cell = origin.offsetBy(x, y, z);
+                    if (bounds && !(bounds->isInside(cell) && bounds->isInside(cell.offsetBy(1)))) continue;
+                    if (!w.meshed(x, y, z)) continue;
+                    ++out.total;
+                    // The rule reads one voxel beyond each edge: cells whose stencil leaves the data
+                    // are never flagged.
+                    if (bounds && !(bounds->isInside(cell.offsetBy(-1)) && bounds->isInside(cell.offsetBy(2))))
+                        continue;
+                    if (!cellTurns(w, x, y, z)) continue;
+                    ++out.flagged;
+                    // Transition cells must be meshed too, so the refinement stops one cell short of
+                    // the border of the active region (where a sparse surface ends anyway).
+                    bool neighboursMeshed = true;
+                    for (int dx = -1; dx <= 1 && neighboursMeshed; ++dx)
+                        for (int dy = -1; dy <= 1 && neighboursMeshed; ++dy)
+                            for (int dz = -1; dz <= 1 && neighboursMeshed; ++dz)
+                                if (std::abs(dx) + std::abs(dy) + std::abs(dz) <= 2)
+                                    neighboursMeshed = w.meshed(x + dx, y + dy, z + dz);
+                    if (!neighboursMeshed) continue;
+                    for (int a = 0; a < 4; ++a)
+                        for (int c = 0; c < 4; ++c)
+                            for (int d = 0; d < 4; ++d)
+                                stencil[16 * a + 4 * c + d] = w.value(x + a - 1, y + c - 1, z + d - 1);
+                    refineCell(stencil, m, sub);
+                    if (!crosses(sub, k)) continue;
+                    if (hidden.filter && !reveals(sub, m, k)) continue;
+                    out.refined.push_back(cell);
+                }
+    });
+    HiddenFeatureStats stats;
+    std::vector<Coord> refined;
+    for (const BlockResult& r : blockResults) {
+        stats.cellsTotal += r.total;
+        stats.cellsFlagged += r.flagged;
+        refined.insert(refined.end(), r.refined.begin(), r.refined.end());
+    }
+    std::sort(refined.begin(), refined.end());
+    stats.cellsRefined = refined.size();
+
+    // Transition cells: unrefined cells sharing a face or an edge with a refined one.
+    std::vector<Coord> transition;
+    for (const Coord& c : refined)
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const int n = std::abs(dx) + std::abs(dy) + std::abs(dz);
+                    if (n >= 1 && n <= 2) transition.push_back(c.offsetBy(dx, dy, dz));
+                }
+    std::sort(transition.begin(), transition.end());
+    transition.erase(std::unique(transition.begin(), transition.end()), transition.end());
+    transition.erase(std::remove_if(transition.begin(), transition.end(),
+                         [&](const Coord& c) { return contains(refined, c); }),
+        transition.end());
+    stats.cellsTransition = transition.size();
+    if (statsOut) *statsOut = stats;
+    throwIfInterrupted(interrupter);
+
+    Mesh mesh;
+    mesh.indexToWorld = standard.indexToWorld;
+    if (refined.empty()) { // nothing refined: the standard mesh, all of it standard
+        mesh = standard;
+        mesh.vertexAttributes.add<std::uint8_t>("hidden", mesh.vertexCount());
+        mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
+        return mesh;
+    }
+
+    // Refine and transition, in chunks of cells; chunk order is cell order.
+    constexpr std::size_t kChunk = 32;
+    const std::size_t refinedChunks = (refined.size() + kChunk - 1) / kChunk;
+    const std::size_t transitionChunks = (transition.size() + kChunk - 1) / kChunk;
+    std::vector<Patch> patches(refinedChunks + transitionChunks);
+    forEach(patches.size(), 1, threaded, interrupter, [&](std::size_t chunk) {
+        const bool isRefined = chunk < refinedChunks;
+        const std::vector<Coord>& cells = isRefined ? refined : transition;
+        const std::size_t first = (isRefined ? chunk : chunk - refinedChunks) * kChunk;
+        const std::size_t last = std::min(cells.size(), first + kChunk);
+        float stencil[64];
+        RefinedCell rc{Coord(), m, double(k), {}};
+        for (std::size_t i = first; i < last; ++i) {
+            rc.cell = cells[i];
+            gatherStencil(accessors.local(), rc.cell, stencil);
+            refineCell(stencil, m, rc.sub);
+            if (isRefined) meshRefinedCell(rc, patches[chunk]);
+            else meshTransitionCell(rc, refined, patches[chunk]);
+        }
+    });
+
+    // New vertices: subcell-edge crossings, sorted by key and shared.
+    std::vector<FineVertex> fine;
+    for (const Patch& p : patches) fine.insert(fine.end(), p.vertices.begin(), p.vertices.end());
+    auto byKey = [](const FineVertex& a, const FineVertex& b) { return a.key < b.key; };
+    if (threaded) tbb::parallel_sort(fine.begin(), fine.end(), byKey);
+    else std::sort(fine.begin(), fine.end(), byKey);
+    fine.erase(std::unique(fine.begin(), fine.end(), [](const FineVertex& a, const FineVertex& b) {
+        return a.key == b.key;
+    }), fine.end());
+
+    // Standard vertices used by transition loops, found by their grid edge.
+    std::vector<Key> coarse;
+    for (std::size_t c = refinedChunks; c < patches.size(); ++c)
+        for (const Key& key : patches[c].members)
+            if (key.kind >= kCoarse && key.kind < kCentre) coarse.push_back(key);
+    std::sort(coarse.begin(), coarse.end());
+    coarse.erase(std::unique(coarse.begin(), coarse.end()), coarse.end());
+    const std::size_t standardVertices = standard.vertexCount();
+    std::vector<std::uint32_t> coarseVertex(coarse.size(), std::numeric_limits<std::uint32_t>::max());
+    forEach(standardVertices, 4096, threaded, nullptr, [&](std::size_t v) {
+        const Key key{Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]), std::uint16_t(kCoarse + (*edgeAxis)[v])};
+        const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
+        if (it != coarse.end() && *it == key) coarseVertex[std::size_t(it - coarse.begin())] = std::uint32_t(v);
+    });
+    for (std::uint32_t v : coarseVertex)
+        if (v == std::numeric_limits<std::uint32_t>::max())
+            throw std::logic_error("hidden features: a transition cell's grid edge has no standard vertex");
+
+    // Standard triangles of cells outside R and T stay.
+    std::vector<Coord> replaced;
+    std::merge(refined.begin(), refined.end(), transition.begin(), transition.end(), std::back_inserter(replaced));
+    std::vector<std::uint8_t> keep(standard.triangleCount(), 1);
+    forEach(standard.triangleCount(), 4096, threaded, interrupter, [&](std::size_t t) {
+        std::array<Coord, 3> voxel;
+        std::array<int, 3> axis;
+        for (int i = 0; i < 3; ++i) {
+            const std::size_t v = standard.triangles[t][i];
+            voxel[i] = Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
+            axis[i] = (*edgeAxis)[v];
+        }
+        const std::optional<Coord> cell = cellOfTriangle(voxel, axis);
+        if (cell && contains(replaced, *cell)) keep[t] = 0;
+    });
+
+    // Vertex numbering: used standard vertices in their order, then fine vertices, then centres.
+    std::vector<std::uint32_t> remap(standardVertices, 0);
+    for (std::size_t t = 0; t < keep.size(); ++t)
+        if (keep[t])
+            for (int i = 0; i < 3; ++i) remap[standard.triangles[t][i]] = 1;
+    for (std::uint32_t v : coarseVertex) remap[v] = 1;
+    std::uint32_t next = 0;
+    std::vector<std::uint32_t> kept;
+    for (std::size_t v = 0; v < standardVertices; ++v) {
+        if (remap[v]) {
+            remap[v] = next++;
+            kept.push_back(std::uint32_t(v));
+        } else {
+            remap[v] = std::numeric_limits<std::uint32_t>::max();
+        }
+    }
+    const std::size_t fineBase = kept.size(), centreBase = fineBase + fine.size();
+    std::vector<std::pair<Key, std::size_t>> centres; // key -> (chunk, loop) in chunk order
+    for (std::size_t c = refinedChunks; c < patches.size(); ++c)
+        for (std::size_t l = 0; l < patches[c].centres.size(); ++l) centres.emplace_back(patches[c].centres[l], 0);
+    std::sort(centres.begin(), centres.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    const std::size_t vertexCount = centreBase + centres.size();
+    if (vertexCount > std::numeric_limits<std::uint32_t>::max())
+        OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
+
+    auto indexOf = [&](const Key& key) -> std::uint32_t {
+        if (key.kind < kCoarse) {
+            const auto it = std::lower_bound(fine.begin(), fine.end(), FineVertex{key, Vec3d()},
+                [](const FineVertex& a, const FineVertex& b) { return a.key < b.key; });
+            return std::uint32_t(fineBase + std::size_t(it - fine.begin()));
+        }
+        if (key.kind < kCentre) {
+            const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
+            return remap[coarseVertex[std::size_t(it - coarse.begin())]];
+        }
+        const auto it = std::lower_bound(centres.begin(), centres.end(), key,
+            [](const auto& a, const Key& b) { return a.first < b; });
+        return std::uint32_t(centreBase + std::size_t(it - centres.begin()));
+    };
+
+    // Positions.
+    mesh.positions.resize(vertexCount);
+    for (std::size_t i = 0; i < kept.size(); ++i) mesh.positions[i] = standard.positions[kept[i]];
+    const openvdb::math::Transform& xform = grid.transform();
+    forEach(fine.size(), 1024, threaded, nullptr, [&](std::size_t i) {
+        mesh.positions[fineBase + i] = openvdb::Vec3s(xform.indexToWorld(fine[i].index));
+    });
+    for (std::size_t c = refinedChunks; c < patches.size(); ++c) {
+        const Patch& p = patches[c];
+        for (std::size_t l = 0; l < p.centres.size(); ++l) {
+            const std::uint32_t begin = l == 0 ? 0 : p.memberOffsets[l - 1], end = p.memberOffsets[l];
+            Vec3d sum(0.0);
+            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j])]);
+            mesh.positions[indexOf(p.centres[l])] = openvdb::Vec3s(sum / double(end - begin));
+        }
+    }
+
+    // Triangles: kept standard ones, then refined cells', then transition cells'.
+    const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
+    const bool flip = settings.orientation == Orientation::TowardsHigher ||
+                      (settings.orientation == Orientation::Auto && levelSet);
+    std::size_t keptTriangles = 0;
+    for (std::uint8_t f : keep) keptTriangles += f;
+    mesh.triangles.reserve(keptTriangles);
+    for (std::size_t t = 0; t < keep.size(); ++t) {
+        if (!keep[t]) continue;
+        const openvdb::Vec3I& tri = standard.triangles[t];
+        mesh.triangles.emplace_back(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
+    }
+    for (const Patch& p : patches)
+        for (const auto& tri : p.triangles) {
+            const std::uint32_t a = indexOf(tri[0]), b = indexOf(tri[1]), c = indexOf(tri[2]);
+            mesh.triangles.push_back(flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c));
+        }
+
+    // Attributes (SPEC §6): standard columns copied; refined vertices as documented in the header.
+    for (const Attribute& column : standard.vertexAttributes.columns()) {
+        std::visit([&](const auto& src) {
+            using T = typename std::decay_t<decltype(src)>::value_type;
+            std::vector<T>& dst = mesh.vertexAttributes.add<T>(column.name, vertexCount);
+            for (std::size_t i = 0; i < kept.size(); ++i) dst[i] = src[kept[i]];
+            T fill{};
+            if constexpr (std::is_floating_point_v<T>) fill = std::numeric_limits<T>::quiet_NaN();
+            std::fill(dst.begin() + std::ptrdiff_t(fineBase), dst.end(), fill);
+        }, column.data);
+    }
+    if (auto* ei = mesh.vertexAttributes.find<std::int32_t>("edge_i")) {
+        auto& ej = *mesh.vertexAttributes.find<std::int32_t>("edge_j");
+        auto& ek = *mesh.vertexAttributes.find<std::int32_t>("edge_k");
+        auto& ea = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
+        auto floorDiv = [m](int v) { return v >= 0 ? v / m : -((-v + m - 1) / m); };
+        for (std::size_t i = 0; i < fine.size(); ++i) {
+            const Coord& p = fine[i].key.p;
+            (*ei)[fineBase + i] = floorDiv(p[0]);
+            ej[fineBase + i] = floorDiv(p[1]);
+            ek[fineBase + i] = floorDiv(p[2]);
+            ea[fineBase + i] = std::uint8_t(fine[i].key.kind);
+        }
+        for (std::size_t i = 0; i < centres.size(); ++i) {
+            const Coord& c = centres[i].first.p;
+            (*ei)[centreBase + i] = c[0];
+            ej[centreBase + i] = c[1];
+            ek[centreBase + i] = c[2];
+            ea[centreBase + i] = 255;
+        }
+    }
+    auto& hiddenVertex = mesh.vertexAttributes.add<std::uint8_t>("hidden", vertexCount);
+    std::fill(hiddenVertex.begin() + std::ptrdiff_t(fineBase), hiddenVertex.end(), std::uint8_t(1));
+    for (const Attribute& column : standard.faceAttributes.columns()) {
+        std::visit([&](const auto& src) {
+            using T = typename std::decay_t<decltype(src)>::value_type;
+            std::vector<T>& dst = mesh.faceAttributes.add<T>(column.name, mesh.triangleCount());
+            std::size_t n = 0;
+            for (std::size_t t = 0; t < keep.size(); ++t)
+                if (keep[t]) dst[n++] = src[t];
+        }, column.data);
+    }
+    auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
+    std::fill(hiddenFace.begin() + std::ptrdiff_t(keptTriangles), hiddenFace.end(), std::uint8_t(1));
+    return mesh;
+}
+
+Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSettings& settings,
+    const HiddenFeatureSettings& hidden, HiddenFeatureStats* stats, openvdb::util::NullInterrupter* interrupter)
+{
+    if (hidden.subdivisions < 1 || hidden.subdivisions > hidden_internal::kMaxSubdivisions)
+        OPENVDB_THROW(openvdb::ValueError, "hidden features: subdivisions must be between 1 and 64 (got "
+                                               + std::to_string(hidden.subdivisions) + ")");
+    MeshSettings withProvenance = settings;
+    withProvenance.provenance = true;
+    const Mesh standard = extractIsosurface(grid, withProvenance, interrupter);
+    Mesh mesh = addHiddenFeatures(grid, standard, settings, hidden, stats, interrupter);
+    if (!settings.provenance && !settings.uncertainty) { // the columns the caller asked for
+        auto& columns = mesh.vertexAttributes.columns();
+        columns.erase(std::remove_if(columns.begin(), columns.end(), [](const Attribute& a) {
+            return a.name == "edge_i" || a.name == "edge_j" || a.name == "edge_k" || a.name == "edge_axis" ||
+                   a.name == "t_linear";
+        }), columns.end());
+    }
+    return mesh;
+}
+
+} // namespace isouq

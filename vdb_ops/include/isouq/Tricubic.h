@@ -1,0 +1,96 @@
+// isouq: the tricubic Lagrange interpolant on the 4x4x4 voxels around a cell (paper sec. 4.2,
+// SPEC §4), used to refine cells that may hide a feature.
+//
+// Along each axis the weights are those of the 4-point Lagrange cubic on the nodes -1, 0, 1, 2
+// (the SPEC §2 cubic, so every view agrees). Evaluation is a tensor product summed in one fixed
+// order (z innermost, then y, then x), and at a node (t = 0 or 1) the axis reads that node's
+// value instead of summing with weights 0 and 1. Hence a point on a cell face is computed from
+// that grid plane's 4x4 values alone, and a point on a cell edge from that grid line's four
+// values alone, by the same operations in every cell that shares the face or edge: two refined
+// neighbours agree bitwise on their shared face (SPEC §4 "useful property").
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <vector>
+
+namespace isouq {
+
+/// Weights of the 4-point Lagrange cubic on the nodes -1, 0, 1, 2 at one parameter t.
+struct CubicWeights {
+    int node = -1;              ///< 1 when t = 0, 2 when t = 1 (stencil index); -1 otherwise
+    std::array<double, 4> w{};  ///< used when node < 0
+};
+
+/// Lagrange weights at @a t (any real t; t = 0 and t = 1 select the node exactly).
+inline CubicWeights cubicWeightsAt(double t)
+{
+    CubicWeights c;
+    if (t == 0.0) c.node = 1;
+    else if (t == 1.0) c.node = 2;
+    c.w = {-t * (t - 1.0) * (t - 2.0) / 6.0, (t + 1.0) * (t - 1.0) * (t - 2.0) / 2.0,
+        -(t + 1.0) * t * (t - 2.0) / 2.0, (t + 1.0) * t * (t - 1.0) / 6.0};
+    return c;
+}
+
+/// Weights at the subdivision point t = s / m, 0 <= s <= m.
+inline CubicWeights cubicWeights(int s, int m) { return cubicWeightsAt(double(s) / double(m)); }
+
+namespace tricubic_internal {
+
+/// sum_j w_j v[j * stride], or the node's value: the one contraction every evaluation uses.
+template <typename T>
+inline double contract(const CubicWeights& c, const T* v, std::ptrdiff_t stride)
+{
+    if (c.node >= 0) return double(v[c.node * stride]);
+    double sum = 0.0;
+    for (int j = 0; j < 4; ++j) sum += c.w[j] * double(v[j * stride]);
+    return sum;
+}
+
+} // namespace tricubic_internal
+
+/// The tricubic at one point. @a stencil holds f(i-1+a, j-1+b, k-1+c) at index 16a + 4b + c for
+/// the cell between voxels ijk and ijk+1; the weights give the point's local coordinates.
+template <typename T>
+double tricubic(const T* stencil, const CubicWeights& wx, const CubicWeights& wy, const CubicWeights& wz)
+{
+    using tricubic_internal::contract;
+    double alongY[4];
+    for (int a = 0; a < 4; ++a) {
+        if (wx.node >= 0 && a != wx.node) continue;
+        double alongZ[4];
+        for (int b = 0; b < 4; ++b) {
+            if (wy.node >= 0 && b != wy.node) continue;
+            alongZ[b] = contract(wz, stencil + 16 * a + 4 * b, 1);
+        }
+        alongY[a] = contract(wy, alongZ, 1);
+    }
+    return contract(wx, alongY, 1);
+}
+
+/// Values of the tricubic at the (m+1)^3 points (p, q, r) / m of the cell, written to
+/// out[((p * (m+1)) + q) * (m+1) + r]. Separable: the same sums as tricubic(), reused.
+template <typename T>
+void refineCell(const T* stencil, int m, std::vector<double>& out)
+{
+    using tricubic_internal::contract;
+    const int n = m + 1;
+    std::vector<CubicWeights> w(static_cast<std::size_t>(n));
+    for (int s = 0; s < n; ++s) w[std::size_t(s)] = cubicWeights(s, m);
+    // alongZ[(a*4 + b)*n + r], then alongY[(a*n + q)*n + r]; unused entries stay unread.
+    std::vector<double> alongZ(std::size_t(16 * n)), alongY(std::size_t(4 * n * n));
+    for (int ab = 0; ab < 16; ++ab)
+        for (int r = 0; r < n; ++r) alongZ[std::size_t(ab * n + r)] = contract(w[r], stencil + 4 * ab, 1);
+    for (int a = 0; a < 4; ++a)
+        for (int q = 0; q < n; ++q)
+            for (int r = 0; r < n; ++r)
+                alongY[std::size_t((a * n + q) * n + r)] = contract(w[q], &alongZ[std::size_t(4 * a * n + r)], n);
+    out.resize(std::size_t(n) * n * n);
+    for (int p = 0; p < n; ++p)
+        for (int q = 0; q < n; ++q)
+            for (int r = 0; r < n; ++r)
+                out[std::size_t((p * n + q) * n + r)] = contract(w[p], &alongY[std::size_t(q * n + r)], n * n);
+}
+
+} // namespace isouq
