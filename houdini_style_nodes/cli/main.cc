@@ -1,17 +1,23 @@
 // isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report.
+// The options of `mesh` come from the parameter declarations of the read_volume, mesh,
+// write_ply and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
+#include "ParmOptions.h"
 #include "ProgressInterrupter.h"
 #include "ValidateCommand.h"
 
 #include <isouq/MeshIO.h>
+#include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshJob.h>
 
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
+#include <tbb/global_control.h>
 
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <memory>
 #include <unistd.h>
 
 namespace {
@@ -38,9 +44,17 @@ puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: 
 interrupted run (Ctrl-C, exit 130) leaves no partial file and never clobbers an existing one.
 )";
 
+const char* const kRunFooter = R"(
+A graph is JSON: {"nodes": [{"id": "read", "type": "read_volume", "parms": {...}},
+  {"id": "mesh", "type": "mesh", "inputs": {"volume": "read"}}, ...]}. 'isouq nodes' lists the
+node types and their parameters; examples/ has one graph per paper figure; see docs/nodes.md.
+${NAME} in a string parameter is the environment variable NAME. Every node cooks before any
+file is written: a failed or interrupted run writes nothing.
+)";
+
 bool stderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
 
-void printNotes(const isouq::nodes::JobNotes& notes, bool quiet)
+void printNotes(const std::vector<std::string>& notes, bool quiet)
 {
     if (quiet) return;
     for (const std::string& note : notes) std::fprintf(stderr, "isouq: %s\n", note.c_str());
@@ -57,34 +71,32 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
     if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", summaryPath.c_str());
 }
 
-/// Options shared by `mesh` and anything else that reads a volume.
-void addVolumeOptions(CLI::App& cmd, MeshJob& job, std::vector<int>& dims, std::vector<double>& spacing,
-    std::vector<double>& domain, float& isovalue)
+/// The mesh job from the node parameters given as flags (ParmOptions.h).
+MeshJob meshJobFrom(const nlohmann::json& read, const nlohmann::json& mesh, const nlohmann::json& out)
 {
-    cmd.add_option("INPUT", job.volume.input,
-           "Volume: FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR")
-        ->required();
-    cmd.add_option("--isovalue,-k", isovalue,
-        "Isovalue k (default: 0 for level sets, SPEC §5's value for fields, else Otsu's "
-        "threshold as a starting value; the value used is printed)");
-    cmd.add_option("--grid", job.volume.gridName, ".vdb: the float grid to mesh (default: the first)");
-    cmd.add_option("--dims", dims, ".raw: X,Y,Z (default: from the file name)")->delimiter(',')->expected(3);
-    cmd.add_option("--dtype", job.volume.dtype, ".raw: uint8|uint16|int16|float32|float64 (default: from the name)")
-        ->check(CLI::IsMember({"uint8", "uint16", "int16", "float32", "float64"}));
-    cmd.add_option("--spacing", spacing, ".raw: voxel spacing X,Y,Z (default 1,1,1)")->delimiter(',')->expected(3);
-    cmd.add_option("--resolution,-n", job.volume.resolution,
-           "field:/formula:: samples per axis, both domain ends included (default: the paper's; 64)")
-        ->check(CLI::Range(2, 4096));
-    cmd.add_option("--domain", domain, "formula:: the cube [LO,HI]^3 (default -1,1)")->delimiter(',')->expected(2);
-}
-
-void finishVolumeOptions(MeshJob& job, const std::vector<int>& dims, const std::vector<double>& spacing,
-    const std::vector<double>& domain, const CLI::App& cmd, float isovalue)
-{
-    if (!dims.empty()) job.volume.dims = openvdb::Vec3i(dims[0], dims[1], dims[2]);
-    if (!spacing.empty()) job.volume.spacing = openvdb::Vec3d(spacing[0], spacing[1], spacing[2]);
-    if (!domain.empty()) job.volume.domain = std::make_pair(domain[0], domain[1]);
-    if (cmd.count("--isovalue")) job.volume.isovalue = isovalue;
+    MeshJob job;
+    auto& v = job.volume;
+    v.input = read.at("input");
+    if (read.contains("grid")) v.gridName = read["grid"];
+    if (read.contains("dims")) {
+        const auto d = read["dims"].get<std::array<int, 3>>();
+        v.dims = openvdb::Vec3i(d[0], d[1], d[2]);
+    }
+    if (read.contains("dtype")) v.dtype = read["dtype"];
+    if (read.contains("spacing")) {
+        const auto s = read["spacing"].get<std::array<double, 3>>();
+        v.spacing = openvdb::Vec3d(s[0], s[1], s[2]);
+    }
+    if (read.contains("resolution")) v.resolution = read["resolution"].get<int>();
+    if (read.contains("domain")) {
+        const auto d = read["domain"].get<std::array<double, 2>>();
+        v.domain = std::make_pair(d[0], d[1]);
+    }
+    if (read.contains("isovalue")) v.isovalue = read["isovalue"].get<float>();
+    job.method = *isouq::edgeMethodFromString(mesh.value("method", std::string("weno")));
+    job.uncertainty = !mesh.value("linear_only", false);
+    job.output = out.at("path");
+    return job;
 }
 
 int runJob(const MeshJob& job, bool quiet)
@@ -97,32 +109,58 @@ int runJob(const MeshJob& job, bool quiet)
     return 0;
 }
 
+int runGraphFile(const std::string& path, const std::string& outDir, bool quiet)
+{
+    isouq::nodes::GraphOptions options;
+    options.outputDir = outDir;
+    const isouq::nodes::Graph graph = isouq::nodes::loadGraph(path, options);
+    if (!outDir.empty()) std::filesystem::create_directories(outDir);
+    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
+    const isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress);
+    printNotes(result.warnings, quiet);
+    for (const std::string& file : result.written) std::printf("wrote %s\n", file.c_str());
+    return 0;
+}
+
+int listNodes(bool json, bool markdown)
+{
+    if (json) std::cout << isouq::nodes::nodeTypesJson().dump(2) << "\n";
+    else if (markdown) std::cout << isouq::nodes::nodeTypesMarkdown();
+    else
+        for (const isouq::nodes::NodeType& t : isouq::nodes::nodeTypes()) {
+            std::printf("%-15s %s\n", t.type.c_str(), t.label.c_str());
+            for (const isouq::nodes::ParmSpec& p : t.parms)
+                std::printf("    %-14s %-7s %s\n", p.token.c_str(), toString(p.type).c_str(), p.tooltip.c_str());
+        }
+    return 0;
+}
+
 } // namespace
 
 int main(int argc, char** argv)
 {
+    using isouq::cli::addParmOptions;
+    using isouq::cli::nodeType;
+
     CLI::App app{"isouq: isosurfaces of sparse OpenVDB volumes with per-vertex uncertainty\n"
                  "(linear, cubic and WENO edge crossings, closed-form error estimates).", "isouq"};
     app.set_version_flag("--version", std::string("isouq ") + ISOUQ_VERSION);
     app.require_subcommand(1);
     app.footer("Run 'isouq COMMAND --help' for a command's options and examples.");
 
-    MeshJob job;
-    std::vector<int> dims;
-    std::vector<double> spacing, domain;
-    float isovalue = 0.0f;
-    std::string method = "weno";
-    bool linearOnly = false, quiet = false;
-
+    bool quiet = false;
+    int threads = 0;
+    nlohmann::json readParms = nlohmann::json::object(), meshParms = readParms, plyParms = readParms,
+                   summaryParms = readParms;
     CLI::App* mesh = app.add_subcommand("mesh", "Extract an isosurface and write it as PLY with per-vertex attributes");
-    addVolumeOptions(*mesh, job, dims, spacing, domain, isovalue);
-    mesh->add_option("-o,--output", job.output, "Output mesh (.ply, binary little-endian)")->required();
-    mesh->add_option("--method,-m", method, "Method that places the vertices (all are recorded)")
-        ->check(CLI::IsMember({"linear", "cubic", "weno", "weno-paper"}))
-        ->capture_default_str();
-    mesh->add_flag("--linear-only", linearOnly, "Linear crossings only, no estimates: fastest");
-    mesh->add_option("--summary", job.summaryPath, "Also write the summary as JSON (SPEC §8)");
-    mesh->add_option("--threads,-j", job.threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
+    addParmOptions(*mesh, nodeType("read_volume"), readParms);
+    mesh->get_option("INPUT")->required()->default_str("");
+    addParmOptions(*mesh, nodeType("write_ply"), plyParms);
+    mesh->get_option("--output")->required()->default_str("");
+    addParmOptions(*mesh, nodeType("mesh"), meshParms);
+    addParmOptions(*mesh, nodeType("write_summary"), summaryParms);
+    mesh->get_option("--summary")->default_str("");
+    mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     mesh->footer(kMeshExamples);
 
@@ -132,6 +170,19 @@ int main(int argc, char** argv)
     demo->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     demo->footer("\nMeshes the Teardrop field (64^3, k = -0.001) with every method and estimate and\n"
                  "writes DIR/teardrop.ply and DIR/teardrop.summary.json.\n");
+
+    bool asJson = false, asMarkdown = false;
+    CLI::App* nodesCmd = app.add_subcommand("nodes", "List the node types and their parameters");
+    nodesCmd->add_flag("--json", asJson, "As JSON (read by the Blender add-on)");
+    nodesCmd->add_flag("--markdown", asMarkdown, "As the Markdown of docs/node-parameters.md");
+
+    std::string graphPath, outDir;
+    CLI::App* run = app.add_subcommand("run", "Run a JSON node graph");
+    run->add_option("GRAPH", graphPath, "Graph file (.json)")->required();
+    run->add_option("--out-dir,-d", outDir, "Folder for relative output paths (default: the current one)");
+    run->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
+    run->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
+    run->footer(kRunFooter);
 
     int validateStatus = 0;
     isouq::cli::addValidateCommand(app, validateStatus);
@@ -152,21 +203,29 @@ int main(int argc, char** argv)
         return kExitBadInput;
     }
 
+    std::unique_ptr<tbb::global_control> threadLimit;
+    if (threads > 0)
+        threadLimit = std::make_unique<tbb::global_control>(
+            tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+
     try {
         if (*mesh) {
-            finishVolumeOptions(job, dims, spacing, domain, *mesh, isovalue);
-            job.method = *isouq::edgeMethodFromString(method);
-            job.uncertainty = !linearOnly;
+            MeshJob job = meshJobFrom(readParms, meshParms, plyParms);
+            job.summaryPath = summaryParms.value("path", std::string());
+            job.threads = threads;
             return runJob(job, quiet);
         }
         if (*demo) {
             std::filesystem::create_directories(demoDir);
+            MeshJob job;
             job.volume.input = "field:teardrop";
             job.volume.resolution = 64;
             job.output = (std::filesystem::path(demoDir) / "teardrop.ply").string();
             job.summaryPath = (std::filesystem::path(demoDir) / "teardrop.summary.json").string();
             return runJob(job, quiet);
         }
+        if (*nodesCmd) return listNodes(asJson, asMarkdown);
+        if (*run) return runGraphFile(graphPath, outDir, quiet);
         return validateStatus;
     } catch (const isouq::InterruptedError&) {
         std::fprintf(stderr, "\nisouq: interrupted; no output written\n");

@@ -5,6 +5,7 @@
 
 #include <isouq/MarchingCubes.h>
 #include <isouq/VolumeSources.h>
+#include <isouq/nodes/Summary.h>
 
 #include <nlohmann/json.hpp>
 
@@ -29,9 +30,5 @@ using JobNotes = std::vector<std::string>;
 /// @throw InputError, IoError (bad input or output), InterruptedError (Ctrl-C).
 nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* interrupter,
     JobNotes* notes = nullptr);
-
-/// The SPEC §8 summary of a mesh: counts, topology and {min, max, mean, rms} of every
-/// per-vertex measure present.
-nlohmann::json summarizeMesh(const Mesh& mesh);
 
 } // namespace isouq::nodes

@@ -1,0 +1,82 @@
+// isouq CLI: options from ParmSpecs (ParmOptions.h).
+#include "ParmOptions.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace isouq::cli {
+namespace {
+
+using nodes::ParmSpec;
+using nodes::ParmType;
+
+/// Re-checks the value with the graph's rules, so a flag and a graph reject the same values.
+void store(nlohmann::json& values, const ParmSpec& spec, const nlohmann::json& value)
+{
+    if (std::string why = nodes::checkParmValue(spec, value); !why.empty()) throw CLI::ValidationError(spec.flag, why);
+    values[spec.token] = value;
+}
+
+CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
+{
+    const std::string& names = spec.flag;
+    switch (spec.type) {
+    case ParmType::Bool:
+        return cmd.add_flag_callback(names, [&values, spec] { store(values, spec, true); }, spec.tooltip);
+    case ParmType::Int:
+        return cmd.add_option_function<long long>(names, [&values, spec](const long long& v) { store(values, spec, v); },
+            spec.tooltip);
+    case ParmType::Float:
+        return cmd.add_option_function<double>(names, [&values, spec](const double& v) { store(values, spec, v); },
+            spec.tooltip);
+    case ParmType::String:
+    case ParmType::Path:
+    case ParmType::Menu: {
+        CLI::Option* o = cmd.add_option_function<std::string>(
+            names, [&values, spec](const std::string& v) { store(values, spec, v); }, spec.tooltip);
+        if (spec.type == ParmType::Menu) o->check(CLI::IsMember(spec.menu));
+        return o;
+    }
+    case ParmType::Vec2:
+    case ParmType::Vec3:
+        return cmd.add_option_function<std::vector<double>>(
+                      names, [&values, spec](const std::vector<double>& v) { store(values, spec, v); }, spec.tooltip)
+            ->delimiter(',')
+            ->expected(spec.type == ParmType::Vec2 ? 2 : 3);
+    case ParmType::Int3:
+        return cmd.add_option_function<std::vector<long long>>(
+                      names, [&values, spec](const std::vector<long long>& v) { store(values, spec, v); }, spec.tooltip)
+            ->delimiter(',')
+            ->expected(3);
+    }
+    throw std::logic_error("unknown parameter type");
+}
+
+} // namespace
+
+void addParmOptions(CLI::App& cmd, const nodes::NodeType& type, nlohmann::json& values,
+    const std::vector<std::string>& tokens)
+{
+    for (const ParmSpec& spec : type.parms) {
+        if (spec.flag.empty()) continue;
+        if (!tokens.empty() && std::find(tokens.begin(), tokens.end(), spec.token) == tokens.end()) continue;
+        CLI::Option* o = addOne(cmd, spec, values);
+        if (spec.type != ParmType::Bool && !spec.defaultValue.is_null())
+            o->default_str(spec.defaultValue.is_string() ? spec.defaultValue.get<std::string>() : spec.defaultValue.dump());
+        if (spec.hardRange && (spec.type == ParmType::Int || spec.type == ParmType::Float) &&
+            std::isfinite(spec.hardRange->first) && std::isfinite(spec.hardRange->second))
+            o->check(spec.type == ParmType::Int
+                    ? CLI::Range(static_cast<long long>(spec.hardRange->first), static_cast<long long>(spec.hardRange->second))
+                    : CLI::Range(spec.hardRange->first, spec.hardRange->second));
+    }
+}
+
+const nodes::NodeType& nodeType(const std::string& name)
+{
+    const nodes::NodeType* t = nodes::findNodeType(name);
+    if (!t) throw std::logic_error("no node type " + name);
+    return *t;
+}
+
+} // namespace isouq::cli

@@ -1,0 +1,67 @@
+// isouq nodes: JSON node graphs (`isouq run GRAPH.json`; docs/nodes.md).
+//
+// {"description": "...",
+//  "nodes": [{"id": "read", "type": "read_volume", "parms": {"input": "field:teardrop"}},
+//            {"id": "mesh", "type": "mesh", "inputs": {"volume": "read"}},
+//            {"id": "save", "type": "write_ply", "inputs": {"mesh": "mesh"},
+//             "parms": {"path": "teardrop.ply"}}]}
+//
+// An input names a node ("read") or one of its outputs ("read.volume"). String parameters may
+// use ${NAME} for an environment variable. Relative output paths are taken from the output
+// folder (default: the current one).
+#pragma once
+
+#include "isouq/nodes/Node.h"
+
+#include <isouq/VolumeSources.h>
+
+#include <string>
+#include <vector>
+
+namespace isouq::nodes {
+
+/// A graph that cannot run: what() is one line naming the node and, where there is one, the
+/// parameter or input, e.g. "node 'thr' (threshold): parameter 'percentile': 150 is outside
+/// the hard range [0, 100]".
+struct GraphError : InputError {
+    using InputError::InputError;
+};
+
+struct GraphNode {
+    std::string id;
+    const NodeType* type = nullptr;
+    ParmValues parms;
+    /// input port -> (source node index, source output port)
+    std::map<std::string, std::pair<std::size_t, std::string>> inputs;
+};
+
+struct GraphOptions {
+    std::string outputDir; ///< where relative output paths go ("" = current folder)
+};
+
+struct Graph {
+    std::string description;
+    std::vector<GraphNode> nodes; ///< in an order where every input precedes its reader
+};
+
+/// Parses and checks @a doc completely: unknown node types, parameters or inputs, wrong
+/// types, values outside hard ranges, missing inputs, port type mismatches, cycles, and two
+/// outputs to one path. Nothing runs and nothing is written.
+/// @throw GraphError
+Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options = {});
+
+/// Reads and parses a graph file. @throw GraphError (also for unreadable or invalid JSON).
+Graph loadGraph(const std::string& path, const GraphOptions& options = {});
+
+struct GraphResult {
+    std::vector<std::string> written;  ///< committed files, in order
+    std::vector<std::string> warnings; ///< one line each
+    nlohmann::json outputs = nlohmann::json::object(); ///< per node id, its json outputs
+};
+
+/// Cooks every node in order, then commits the pending writes. Interruption or a failing
+/// node leaves nothing written (and existing files untouched).
+/// @throw InputError naming the node, IoError, InterruptedError.
+GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter = nullptr);
+
+} // namespace isouq::nodes

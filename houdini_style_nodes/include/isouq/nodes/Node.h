@@ -1,0 +1,100 @@
+// isouq nodes: node types and what flows between them (STYLE "Nodes": ParmFactory SOPs, the
+// verb/cache split, vdb_tool actions). A NodeType is a declaration (parameters, ports, help)
+// plus a pure cook: it reads its inputs and parameters and fills its outputs, nothing else.
+// Files are never written during a cook: write nodes queue a PendingWrite that the graph
+// commits only when every node has cooked, so a failed or interrupted run writes nothing.
+#pragma once
+
+#include "isouq/nodes/Parm.h"
+
+#include <isouq/MeshAttributes.h>
+
+#include <openvdb/util/NullInterrupter.h>
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace isouq {
+struct LoadedVolume; // VolumeSources.h
+}
+
+namespace isouq::nodes {
+
+/// A mesh on its way through a graph, with what later nodes need to know about it.
+struct MeshData {
+    Mesh mesh;
+    float isovalue = 0.0f;
+    std::string method;    ///< method of the positions ("linear", "weno", "blend", ...)
+    nlohmann::json info = nlohmann::json::object(); ///< e.g. "hidden", "threshold", "box" blocks
+};
+
+/// The value on one port: which member is set follows the port's type.
+struct NodeValue {
+    std::shared_ptr<const LoadedVolume> volume; ///< "volume"
+    std::shared_ptr<const MeshData> mesh;       ///< "mesh"
+    nlohmann::json json;                        ///< "json"
+};
+
+/// A file a write node will produce once the whole graph has cooked.
+struct PendingWrite {
+    std::string path;
+    std::function<void()> commit; ///< writes atomically (MeshIO.h); throws IoError
+};
+
+/// What a cook sees. Inputs of optional ports that are not connected are absent.
+struct CookContext {
+    std::string nodeId;
+    ParmValues parms;
+    std::map<std::string, const NodeValue*> inputs;
+    std::map<std::string, NodeValue> outputs;
+    openvdb::util::NullInterrupter* interrupter = nullptr;
+    std::vector<std::string>* warnings = nullptr; ///< one line each, naming the skipped item
+    std::vector<PendingWrite>* writes = nullptr;
+
+    const NodeValue* input(const std::string& name) const
+    {
+        auto it = inputs.find(name);
+        return it == inputs.end() ? nullptr : it->second;
+    }
+    void warn(const std::string& line) const
+    {
+        if (warnings) warnings->push_back(nodeId + ": " + line);
+    }
+};
+
+struct NodeType {
+    std::string type;        ///< lowercase token used in graphs, e.g. "threshold"
+    std::string label;       ///< Title Case
+    std::string description; ///< one or two sentences, citing paper section and SPEC §
+    std::vector<ParmSpec> parms;
+    std::vector<PortSpec> inputs;
+    std::vector<PortSpec> outputs;
+    std::function<void(CookContext&)> cook;
+
+    const ParmSpec* findParm(const std::string& token) const
+    {
+        for (const ParmSpec& p : parms)
+            if (p.token == token) return &p;
+        return nullptr;
+    }
+};
+
+/// Every node type, in documentation order.
+const std::vector<NodeType>& nodeTypes();
+
+/// The node type called @a type, or nullptr.
+const NodeType* findNodeType(const std::string& type);
+
+/// The declarations as JSON (`isouq nodes --json`, read by the Blender add-on).
+nlohmann::json nodeTypesJson();
+
+/// The parameter tables as Markdown (docs/node-parameters.md is this text).
+std::string nodeTypesMarkdown();
+
+/// Per-vertex measures a threshold or summary can use (SPEC §6).
+const std::vector<std::string>& measureNames();
+
+} // namespace isouq::nodes

@@ -1,0 +1,279 @@
+// isouq nodes: parsing, checking and running JSON node graphs (Graph.h; docs/nodes.md).
+#include "isouq/nodes/Graph.h"
+
+#include <isouq/MeshIO.h>
+#include <isouq/Progress.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <set>
+
+namespace isouq::nodes {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string where(const std::string& id, const NodeType* type)
+{
+    return "node '" + id + "'" + (type ? " (" + type->type + ")" : "");
+}
+
+[[noreturn]] void fail(const std::string& id, const NodeType* type, const std::string& what)
+{
+    throw GraphError(where(id, type) + ": " + what);
+}
+
+/// ${NAME} -> the environment variable NAME; unset ones are errors.
+std::string expand(const std::string& s, const std::string& id, const NodeType* type, const std::string& token)
+{
+    static const std::regex var(R"(\$\{([A-Za-z_][A-Za-z0-9_]*)\})");
+    std::string out;
+    auto begin = std::sregex_iterator(s.begin(), s.end(), var);
+    std::size_t last = 0;
+    for (auto it = begin; it != std::sregex_iterator(); ++it) {
+        const char* value = std::getenv((*it)[1].str().c_str());
+        if (!value)
+            fail(id, type, "parameter '" + token + "': environment variable " + (*it)[1].str() + " is not set");
+        out += s.substr(last, it->position() - last) + value;
+        last = it->position() + it->length();
+    }
+    return out + s.substr(last);
+}
+
+ParmValues evaluateParms(const nlohmann::json& given, const std::string& id, const NodeType& type,
+    const GraphOptions& options)
+{
+    if (!given.is_object()) fail(id, &type, "\"parms\" must be an object");
+    for (const auto& [token, value] : given.items()) {
+        const ParmSpec* spec = type.findParm(token);
+        if (!spec) fail(id, &type, "unknown parameter '" + token + "' (see 'isouq nodes')");
+        if (std::string why = checkParmValue(*spec, value); !why.empty())
+            fail(id, &type, "parameter '" + token + "': " + why);
+    }
+    nlohmann::json values = nlohmann::json::object();
+    for (const ParmSpec& spec : type.parms) {
+        nlohmann::json v = given.contains(spec.token) ? given[spec.token] : spec.defaultValue;
+        if (v.is_string() && (spec.type == ParmType::String || spec.type == ParmType::Path))
+            v = expand(v.get<std::string>(), id, &type, spec.token);
+        if (spec.type == ParmType::Path && v.is_string()) {
+            fs::path p(v.get<std::string>());
+            if (p.is_relative() && !options.outputDir.empty()) p = fs::path(options.outputDir) / p;
+            v = p.lexically_normal().string();
+        }
+        values[spec.token] = v;
+    }
+    return ParmValues(values);
+}
+
+struct RawNode {
+    std::string id;
+    const NodeType* type;
+    ParmValues parms;
+    nlohmann::json inputs;
+};
+
+const PortSpec* findPort(const std::vector<PortSpec>& ports, const std::string& name)
+{
+    for (const PortSpec& p : ports)
+        if (p.name == name) return &p;
+    return nullptr;
+}
+
+} // namespace
+
+Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
+{
+    if (!doc.is_object() || !doc.contains("nodes") || !doc["nodes"].is_array())
+        throw GraphError("a graph is an object with a \"nodes\" array");
+    for (const auto& [key, value] : doc.items())
+        if (key != "nodes" && key != "description" && key != "figure")
+            throw GraphError("unknown key '" + key + "' (a graph has description, figure and nodes)");
+
+    std::vector<RawNode> raw;
+    std::map<std::string, std::size_t> byId;
+    for (const nlohmann::json& n : doc["nodes"]) {
+        if (!n.is_object() || !n.contains("id") || !n["id"].is_string() || n["id"].get<std::string>().empty())
+            throw GraphError("each node is an object with a non-empty string \"id\": " + n.dump());
+        const std::string id = n["id"];
+        if (byId.count(id)) fail(id, nullptr, "the id is used twice");
+        for (const auto& [key, value] : n.items())
+            if (key != "id" && key != "type" && key != "parms" && key != "inputs" && key != "comment")
+                fail(id, nullptr, "unknown key '" + key + "' (a node has id, type, parms, inputs, comment)");
+        if (!n.contains("type") || !n["type"].is_string()) fail(id, nullptr, "no \"type\"");
+        const NodeType* type = findNodeType(n["type"]);
+        if (!type) fail(id, nullptr, "unknown node type '" + n["type"].get<std::string>() + "' (see 'isouq nodes')");
+        const nlohmann::json inputs = n.value("inputs", nlohmann::json::object());
+        if (!inputs.is_object()) fail(id, type, "\"inputs\" must be an object");
+        byId[id] = raw.size();
+        raw.push_back({id, type, evaluateParms(n.value("parms", nlohmann::json::object()), id, *type, options), inputs});
+    }
+
+    // Connections: "node" (its first output of the input's type) or "node.port".
+    std::vector<GraphNode> nodes(raw.size());
+    std::vector<std::vector<std::size_t>> readers(raw.size());
+    std::vector<std::size_t> pending(raw.size(), 0);
+    for (std::size_t n = 0; n < raw.size(); ++n) {
+        const RawNode& r = raw[n];
+        nodes[n] = {r.id, r.type, r.parms, {}};
+        for (const auto& [port, source] : r.inputs.items()) {
+            const PortSpec* in = findPort(r.type->inputs, port);
+            if (!in) fail(r.id, r.type, "unknown input '" + port + "'");
+            if (!source.is_string()) fail(r.id, r.type, "input '" + port + "': expected \"node\" or \"node.output\"");
+            std::string from = source, outName;
+            if (auto dot = from.find('.'); dot != std::string::npos) {
+                outName = from.substr(dot + 1);
+                from = from.substr(0, dot);
+            }
+            auto it = byId.find(from);
+            if (it == byId.end()) fail(r.id, r.type, "input '" + port + "': no node '" + from + "'");
+            const NodeType* srcType = raw[it->second].type;
+            const PortSpec* out = nullptr;
+            for (const PortSpec& o : srcType->outputs)
+                if (outName.empty() ? o.type == in->type : o.name == outName) {
+                    out = &o;
+                    break;
+                }
+            if (!out)
+                fail(r.id, r.type, "input '" + port + "': node '" + from + "' has no " +
+                    (outName.empty() ? in->type + " output" : "output '" + outName + "'"));
+            if (out->type != in->type)
+                fail(r.id, r.type, "input '" + port + "': expects a " + in->type + ", '" + source.get<std::string>() +
+                    "' is a " + out->type);
+            nodes[n].inputs[port] = {it->second, out->name};
+            readers[it->second].push_back(n);
+            ++pending[n];
+        }
+        for (const PortSpec& in : r.type->inputs)
+            if (!in.optional && !r.inputs.contains(in.name))
+                fail(r.id, r.type, "input '" + in.name + "' is not connected");
+    }
+
+    // Kahn's order; what is left is on or behind a cycle.
+    std::vector<std::size_t> ready;
+    for (std::size_t n = 0; n < raw.size(); ++n)
+        if (pending[n] == 0) ready.push_back(n);
+    std::vector<bool> done(raw.size(), false);
+    for (std::size_t next = 0; next < ready.size(); ++next) {
+        const std::size_t n = ready[next];
+        done[n] = true;
+        for (std::size_t r : readers[n])
+            if (--pending[r] == 0) ready.push_back(r);
+    }
+    if (ready.size() != raw.size()) {
+        // Walk inputs backwards from an unfinished node until a node repeats: that is the cycle.
+        std::size_t n = 0;
+        while (done[n]) ++n;
+        std::vector<std::size_t> path;
+        std::vector<int> seenAt(raw.size(), -1);
+        while (seenAt[n] < 0) {
+            seenAt[n] = int(path.size());
+            path.push_back(n);
+            for (const auto& [port, src] : nodes[n].inputs)
+                if (!done[src.first]) {
+                    n = src.first;
+                    break;
+                }
+        }
+        std::string cycle;
+        for (std::size_t i = std::size_t(seenAt[n]); i < path.size(); ++i) cycle = raw[path[i]].id + " <- " + cycle;
+        fail(raw[n].id, raw[n].type, "input cycle: " + cycle + raw[n].id);
+    }
+
+    // Renumber in running order.
+    Graph graph;
+    graph.description = doc.value("description", "");
+    std::vector<std::size_t> position(raw.size());
+    for (std::size_t i = 0; i < ready.size(); ++i) position[ready[i]] = i;
+    for (std::size_t n : ready) {
+        graph.nodes.push_back(nodes[n]);
+        for (auto& [port, src] : graph.nodes.back().inputs) src.first = position[src.first];
+    }
+
+    // Two writers of one file.
+    std::map<std::string, std::string> writers;
+    for (const GraphNode& n : graph.nodes)
+        for (const ParmSpec& spec : n.type->parms)
+            if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) {
+                const std::string path = fs::absolute(n.parms.getString(spec.token)).lexically_normal().string();
+                auto [it, fresh] = writers.emplace(path, n.id);
+                if (!fresh)
+                    fail(n.id, n.type, "parameter '" + spec.token + "': " + n.parms.getString(spec.token) +
+                        " is also written by node '" + it->second + "'");
+            }
+    return graph;
+}
+
+Graph loadGraph(const std::string& path, const GraphOptions& options)
+{
+    std::ifstream in(path);
+    if (!in) throw GraphError("cannot read " + path);
+    nlohmann::json doc;
+    try {
+        doc = nlohmann::json::parse(in);
+    } catch (const nlohmann::json::parse_error& e) {
+        throw GraphError(path + ": not valid JSON: " + e.what());
+    }
+    try {
+        return parseGraph(doc, options);
+    } catch (const GraphError& e) {
+        throw GraphError(path + ": " + e.what());
+    }
+}
+
+GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter)
+{
+    // Fail on unwritable outputs before any heavy work.
+    for (const GraphNode& n : graph.nodes)
+        for (const ParmSpec& spec : n.type->parms)
+            if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) try {
+                    checkWritable(n.parms.getString(spec.token));
+                } catch (const std::exception& e) {
+                    throw IoError(where(n.id, n.type) + ": parameter '" + spec.token + "': " + e.what());
+                }
+
+    GraphResult result;
+    std::vector<PendingWrite> writes;
+    std::vector<std::map<std::string, NodeValue>> values(graph.nodes.size());
+
+    for (std::size_t n = 0; n < graph.nodes.size(); ++n) {
+        const GraphNode& node = graph.nodes[n];
+        CookContext ctx;
+        ctx.nodeId = node.id;
+        ctx.parms = node.parms;
+        ctx.interrupter = interrupter;
+        ctx.warnings = &result.warnings;
+        ctx.writes = &writes;
+        for (const auto& [port, src] : node.inputs)
+            ctx.inputs[port] = &values[src.first].at(src.second);
+        throwIfInterrupted(interrupter);
+        try {
+            node.type->cook(ctx);
+        } catch (const InterruptedError&) {
+            throw;
+        } catch (const std::exception& e) {
+            if (openvdb::util::wasInterrupted(interrupter)) throw InterruptedError();
+            throw InputError(where(node.id, node.type) + ": " + e.what());
+        }
+        for (const PortSpec& out : node.type->outputs)
+            if (out.type == "json" && ctx.outputs.count(out.name))
+                result.outputs[node.id][out.name] = ctx.outputs[out.name].json;
+        values[n] = std::move(ctx.outputs);
+        // Free what no later node reads (the volume after meshing, say).
+        for (std::size_t m = 0; m < n; ++m) {
+            bool needed = false;
+            for (std::size_t later = n + 1; later < graph.nodes.size() && !needed; ++later)
+                for (const auto& [port, src] : graph.nodes[later].inputs) needed = needed || src.first == m;
+            if (!needed) values[m].clear();
+        }
+    }
+    throwIfInterrupted(interrupter);
+    for (const PendingWrite& w : writes) {
+        w.commit();
+        result.written.push_back(w.path);
+    }
+    return result;
+}
+
+} // namespace isouq::nodes

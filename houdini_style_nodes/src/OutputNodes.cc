@@ -1,0 +1,121 @@
+// isouq nodes: the nodes that write files — write_ply, write_summary, report. Each cook only
+// queues a PendingWrite; the graph commits them after every node has cooked (Node.h).
+#include "NodeFamilies.h"
+
+#include <isouq/MeshIO.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <sys/wait.h>
+
+namespace isouq::nodes::nodes_internal {
+namespace {
+
+namespace fs = std::filesystem;
+
+void writeMesh(const MeshData& m, const std::string& path)
+{
+    PlyOptions ply;
+    ply.version = ISOUQ_VERSION_STRING;
+    ply.isovalue = m.isovalue;
+    ply.method = m.method;
+    writePly(m.mesh, path, ply);
+}
+
+void cookWritePly(CookContext& ctx)
+{
+    auto mesh = ctx.input("mesh")->mesh;
+    const std::string path = ctx.parms.getString("path");
+    ctx.writes->push_back({path, [mesh, path] { writeMesh(*mesh, path); }});
+}
+
+void cookWriteSummary(CookContext& ctx)
+{
+    const std::string text = ctx.input("summary")->json.dump(2) + "\n";
+    const std::string path = ctx.parms.getString("path");
+    ctx.writes->push_back({path, [text, path] { writeTextFileAtomic(path, text); }});
+}
+
+std::string envOr(const char* name, const std::string& fallback)
+{
+    const char* v = std::getenv(name);
+    return v && *v ? v : fallback;
+}
+
+std::string quoted(const std::string& s)
+{
+    std::string q = "'";
+    for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+    return q + "'";
+}
+
+/// Runs scripts/report.py (matplotlib) on the mesh and summary, staged in a temporary folder.
+void writeReport(const MeshData& m, const nlohmann::json& summary, const std::string& dir, bool html)
+{
+    const fs::path stage = fs::path(dir).parent_path() / (fs::path(dir).filename().string() + ".isouq-stage");
+    fs::create_directories(stage);
+    struct Cleanup {
+        fs::path p;
+        ~Cleanup() { std::error_code ec; fs::remove_all(p, ec); }
+    } cleanup{stage};
+    writeMesh(m, (stage / "mesh.ply").string());
+    writeTextFileAtomic((stage / "summary.json").string(), summary.dump(2) + "\n");
+    const std::string command = quoted(envOr("ISOUQ_PYTHON", "/usr/bin/python3")) + " " +
+        quoted(envOr("ISOUQ_REPORT_SCRIPT", ISOUQ_REPORT_SCRIPT)) + " --mesh " + quoted((stage / "mesh.ply").string()) +
+        " --summary " + quoted((stage / "summary.json").string()) + " --out " + quoted(dir) + (html ? " --html" : "");
+    const int status = std::system(command.c_str());
+    if (status != 0)
+        throw IoError("cannot write report " + dir + ": report.py failed (status " +
+            std::to_string(WIFEXITED(status) ? WEXITSTATUS(status) : status) + ")");
+}
+
+void cookReport(CookContext& ctx)
+{
+    auto mesh = ctx.input("mesh")->mesh;
+    const NodeValue* s = ctx.input("summary");
+    nlohmann::json summary = s ? s->json : nlohmann::json::object();
+    const std::string dir = ctx.parms.getString("dir");
+    const bool html = ctx.parms.getBool("html");
+    ctx.writes->push_back({dir, [mesh, summary, dir, html] { writeReport(*mesh, summary, dir, html); }});
+}
+
+} // namespace
+
+void addOutputNodes(std::vector<NodeType>& types)
+{
+    NodeType ply;
+    ply.type = "write_ply";
+    ply.label = "Write PLY";
+    ply.description = "Writes the mesh as binary little-endian PLY with every attribute (SPEC §6; "
+                      "docs/ply-format.md), atomically.";
+    ply.parms = {parm("path", "Path", ParmType::Path, "out.ply", "Output mesh (.ply, binary little-endian)", "-o,--output")};
+    ply.inputs = {{"mesh", "mesh", "The mesh to write"}};
+    ply.cook = cookWritePly;
+    types.push_back(std::move(ply));
+
+    NodeType sum;
+    sum.type = "write_summary";
+    sum.label = "Write Summary";
+    sum.description = "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.";
+    sum.parms = {parm("path", "Path", ParmType::Path, "summary.json", "Output JSON file (with isouq mesh: the SPEC §8 summary)", "--summary")};
+    sum.inputs = {{"summary", "json", "The JSON to write"}};
+    sum.cook = cookWriteSummary;
+    types.push_back(std::move(sum));
+
+    NodeType report;
+    report.type = "report";
+    report.label = "Report";
+    report.description = "Draws the C1 CDF with its threshold, the C5 vertex-by-vertex bars of err_est, d_lc "
+                         "and d_lw in the box, and the C7 summary as PNG (and an HTML page) with matplotlib "
+                         "(scripts/report.py; paper sec. 4.3).";
+    report.parms = {
+        parm("dir", "Folder", ParmType::Path, "report", "Output folder for the PNG files", "-o,--output"),
+        parm("html", "HTML Page", ParmType::Bool, false, "Also write index.html showing the pictures", "--html"),
+    };
+    report.inputs = {{"mesh", "mesh", "A mesh, with `above` (threshold) and `in_box` (box_select) for C1 and C5"},
+        {"summary", "json", "The C7 summary", true}};
+    report.cook = cookReport;
+    types.push_back(std::move(report));
+}
+
+} // namespace isouq::nodes::nodes_internal

@@ -1,0 +1,209 @@
+// isouq nodes: the nodes that touch a volume — read_volume, mesh, error_estimate (SPEC §3, §5,
+// §8). The only translation unit of the node layer that reads grids.
+#include "NodeFamilies.h"
+
+#include <isouq/Diagnostics.h>
+#include <isouq/ErrorEstimate.h>
+#include <isouq/MarchingCubes.h>
+#include <isouq/VolumeSources.h>
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace isouq::nodes::nodes_internal {
+namespace {
+
+const LoadedVolume& inputVolume(const CookContext& ctx)
+{
+    const NodeValue* v = ctx.input("volume");
+    if (!v || !v->volume) throw std::invalid_argument("input 'volume' holds no volume");
+    return *v->volume;
+}
+
+KeepBlocks keepFromString(const std::string& s)
+{
+    if (s == "crossing_or_hidden") return KeepBlocks::CrossingOrHidden;
+    if (s == "non_constant") return KeepBlocks::NonConstant;
+    if (s == "all") return KeepBlocks::All;
+    return KeepBlocks::Crossing;
+}
+
+void cookReadVolume(CookContext& ctx)
+{
+    const ParmValues& p = ctx.parms;
+    VolumeRequest request;
+    request.input = p.getString("input");
+    if (p.isSet("grid")) request.gridName = p.getString("grid");
+    if (p.isSet("dims")) {
+        const auto d = p.at("dims").get<std::array<int, 3>>();
+        request.dims = openvdb::Vec3i(d[0], d[1], d[2]);
+    }
+    if (p.isSet("dtype")) request.dtype = p.getString("dtype");
+    if (p.isSet("spacing")) {
+        const auto s = p.getVec3("spacing");
+        request.spacing = openvdb::Vec3d(s[0], s[1], s[2]);
+    }
+    if (p.isSet("resolution")) request.resolution = p.getInt("resolution");
+    if (p.isSet("domain")) {
+        const auto d = p.at("domain").get<std::array<double, 2>>();
+        request.domain = std::make_pair(d[0], d[1]);
+    }
+    if (p.isSet("isovalue")) request.isovalue = float(p.getFloat("isovalue"));
+    request.keep = keepFromString(p.getString("keep"));
+
+    auto volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
+    const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
+    if (!problem.empty()) throw InputError(problem);
+    if (volume->isovalueSource != "given") {
+        std::ostringstream line;
+        line << "isovalue " << volume->isovalue << " (" << volume->isovalueSource
+             << "; set it with the isovalue parameter)";
+        ctx.warn(line.str());
+    }
+    ctx.outputs["volume"].volume = std::move(volume);
+}
+
+void cookMesh(CookContext& ctx)
+{
+    const LoadedVolume& volume = inputVolume(ctx);
+    const ParmValues& p = ctx.parms;
+    const bool linearOnly = p.getBool("linear_only");
+    MeshSettings settings;
+    settings.isovalue = p.isSet("isovalue") ? float(p.getFloat("isovalue")) : volume.isovalue;
+    if (settings.isovalue != volume.isovalue && volume.keptBlocks < volume.denseBlocks)
+        throw std::invalid_argument("parameter 'isovalue': differs from the volume's (" +
+            std::to_string(volume.isovalue) + "), and the sparse copy of a dense source only holds "
+            "the blocks near that one; set the isovalue on the read_volume node");
+    settings.uncertainty = !linearOnly;
+    settings.provenance = true;
+    settings.method = *edgeMethodFromString(p.getString("method"));
+    auto out = std::make_shared<MeshData>();
+    out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
+    out->isovalue = settings.isovalue;
+    out->method = linearOnly ? "linear" : p.getString("method");
+    out->info["input"] = volume.description;
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
+/// err_est and err_bound of every vertex's linear crossing from the six voxels along its edge
+/// (SPEC §3), read from the grid; stencil voxels outside the data box are missing (SPEC §1).
+void cookErrorEstimate(CookContext& ctx)
+{
+    const LoadedVolume& volume = inputVolume(ctx);
+    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    AttributeTable& a = out->mesh.vertexAttributes;
+    const auto* ei = a.find<std::int32_t>("edge_i");
+    const auto* ej = a.find<std::int32_t>("edge_j");
+    const auto* ek = a.find<std::int32_t>("edge_k");
+    const auto* axis = a.find<std::uint8_t>("edge_axis");
+    const auto* tLinear = a.find<float>("t_linear");
+    if (!ei || !ej || !ek || !axis || !tLinear)
+        throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis t_linear (provenance)");
+    const auto* hidden = a.find<std::uint8_t>("hidden");
+
+    const openvdb::FloatGrid& grid = *volume.grid;
+    std::optional<openvdb::CoordBBox> bounds;
+    auto lo = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMinMeta);
+    auto hi = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
+    if (lo && hi) bounds = openvdb::CoordBBox(openvdb::Coord(lo->value()), openvdb::Coord(hi->value()));
+    const openvdb::Vec3d voxel = grid.voxelSize();
+
+    const std::size_t n = out->mesh.vertexCount();
+    std::vector<float>& est = a.add<float>("err_est", n);
+    std::vector<float>& bound = a.add<float>("err_bound", n);
+    auto acc = grid.getConstAccessor();
+    std::size_t skipped = 0;
+    for (std::size_t v = 0; v < n; ++v) {
+        if ((hidden && (*hidden)[v]) || (*axis)[v] > 2) {
+            est[v] = bound[v] = std::numeric_limits<float>::quiet_NaN();
+            ++skipped;
+            continue;
+        }
+        const int ax = (*axis)[v];
+        std::array<float, 6> f{};
+        std::uint8_t available = 0;
+        for (int j = 0; j < 6; ++j) {
+            openvdb::Coord c((*ei)[v], (*ej)[v], (*ek)[v]);
+            c[ax] += j - 2;
+            if (bounds && !bounds->isInside(c)) continue;
+            f[j] = acc.getValue(c);
+            available |= std::uint8_t(1u << j);
+        }
+        const LinearError e = linearError(f, available, (*tLinear)[v], float(voxel[ax]));
+        est[v] = e.estimate;
+        bound[v] = e.bound;
+        if (v % 4096 == 0 && openvdb::util::wasInterrupted(ctx.interrupter)) throw InterruptedError();
+    }
+    if (skipped) ctx.warn("skipped " + std::to_string(skipped) + " refined (hidden) vertices: no edge of the grid");
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
+} // namespace
+
+void addVolumeNodes(std::vector<NodeType>& types)
+{
+    NodeType read;
+    read.type = "read_volume";
+    read.label = "Read Volume";
+    read.description = "Loads a .vdb grid, a raw scan, a SPEC §5 field or a formula as a sparse FloatGrid "
+                       "and decides the isovalue (SPEC §8; docs/inputs.md).";
+    read.parms = {
+        parm("input", "Input", ParmType::String, "field:teardrop",
+            "FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR", "INPUT"),
+        parm("grid", "Grid", ParmType::String, nullptr, ".vdb: the float grid to read (unset: the first)", "--grid"),
+        ranged(parm("dims", "Dimensions", ParmType::Int3, nullptr, ".raw: X,Y,Z (unset: from the file name)", "--dims"),
+            std::nullopt, std::make_pair(1.0, 1.0e6)),
+        menuParm("dtype", "Data Type", {"uint8", "uint16", "int16", "float32", "float64"}, nullptr,
+            ".raw: sample type (unset: from the file name)", "--dtype"),
+        ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr, ".raw: voxel spacing X,Y,Z (unset: 1,1,1)", "--spacing"),
+            std::nullopt, std::make_pair(0.0, kInf)),
+        ranged(parm("resolution", "Resolution", ParmType::Int, nullptr,
+                   "field:/formula:: samples per axis, both domain ends included (unset: the paper's; 64)",
+                   "--resolution,-n"),
+            std::make_pair(16.0, 512.0), std::make_pair(2.0, 4096.0)),
+        parm("domain", "Domain", ParmType::Vec2, nullptr, "formula:: the cube [LO,HI]^3 (unset: -1,1)", "--domain"),
+        parm("isovalue", "Isovalue", ParmType::Float, nullptr,
+            "Isovalue k (unset: 0 for level sets, SPEC §5's value for fields, else Otsu's threshold "
+            "as a starting value; the value used is reported)",
+            "--isovalue,-k"),
+        menuParm("keep", "Keep Blocks", {"crossing", "crossing_or_hidden", "non_constant", "all"}, "crossing",
+            "Dense sources: which 8^3 blocks stay active (crossing_or_hidden for hidden features; "
+            "non_constant to mesh at other isovalues)"),
+    };
+    read.outputs = {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}};
+    read.cook = cookReadVolume;
+    types.push_back(std::move(read));
+
+    NodeType mesh;
+    mesh.type = "mesh";
+    mesh.label = "Mesh";
+    mesh.description = "Marching cubes on the sparse grid with linear, cubic and WENO crossings and the "
+                       "per-vertex estimates and method differences (paper sec. 3, 4.1; SPEC §2, §3, §6).";
+    mesh.parms = {
+        menuParm("method", "Method", methodMenu(), "weno", "Method that places the vertices (all are recorded)",
+            "--method,-m"),
+        parm("isovalue", "Isovalue", ParmType::Float, nullptr,
+            "Isovalue k (unset: the volume's; a dense source must be read at the same one)"),
+        parm("linear_only", "Linear Only", ParmType::Bool, false,
+            "Linear crossings only, no estimates: fastest", "--linear-only"),
+    };
+    mesh.inputs = {{"volume", "volume", "The volume to mesh"}};
+    mesh.outputs = {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}};
+    mesh.cook = cookMesh;
+    types.push_back(std::move(mesh));
+
+    NodeType est;
+    est.type = "error_estimate";
+    est.label = "Error Estimate";
+    est.description = "Recomputes the paper's estimate e (err_est) and the standard bound e_b (err_bound) of "
+                      "every vertex's linear crossing from the grid (paper sec. 4.1, SPEC §3); after a "
+                      "linear-only mesh it adds them.";
+    est.inputs = {{"volume", "volume", "The volume the mesh came from"},
+        {"mesh", "mesh", "A mesh with provenance (edge_i edge_j edge_k edge_axis t_linear)"}};
+    est.outputs = {{"mesh", "mesh", "The mesh with err_est and err_bound"}};
+    est.cook = cookErrorEstimate;
+    types.push_back(std::move(est));
+}
+
+} // namespace isouq::nodes::nodes_internal
