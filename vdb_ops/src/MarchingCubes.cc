@@ -53,10 +53,15 @@ struct BlockRecord {
     }
 };
 
+/// One voxel per block (coordinates >> 3), value = block index. Small internal nodes (8^3
+/// children rather than OpenVDB's 32^3 and 16^3) keep a small grid's index to a few pages,
+/// which matters when meshing interactively (page faults are expensive here).
+using BlockIndexTree = openvdb::tree::Tree4<std::int32_t, 3, 3, 3>::Type;
+
 /// The blocks to visit, in a deterministic order, and a lookup from block to index.
 struct BlockSet {
     std::vector<Coord> origins;
-    openvdb::Int32Tree index{-1}; // one voxel per block (coordinates >> 3); value = block index
+    BlockIndexTree index{-1};
 
     std::int32_t find(const Coord& origin) const { return index.getValue(origin >> 3); }
 };
@@ -64,7 +69,7 @@ struct BlockSet {
 template <typename TreeT>
 void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded)
 {
-    openvdb::Int32Tree& coarse = blocks.index;
+    BlockIndexTree& coarse = blocks.index;
     // Leaves with an active voxel, dilated by one block: cells with an active corner and the
     // edges they use lie within one voxel of that voxel.
     for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
@@ -102,7 +107,7 @@ class BlockScratch {
 public:
     using LeafT = typename TreeT::LeafNodeType;
 
-    BlockScratch(const TreeT& tree, const openvdb::Int32Tree& blockIndex, int halo)
+    BlockScratch(const TreeT& tree, const BlockIndexTree& blockIndex, int halo)
         : mAccessor(tree), mBlockIndex(blockIndex), mLo(-halo), mWidth(kBlockDim + 2 * halo),
           mValues(std::size_t(mWidth) * mWidth * mWidth), mInsideRows(std::size_t(mWidth) * mWidth),
           mActiveRows(mInsideRows.size())
@@ -259,7 +264,7 @@ private:
     }
 
     openvdb::tree::ValueAccessor<const TreeT> mAccessor;
-    openvdb::tree::ValueAccessor<const openvdb::Int32Tree> mBlockIndex;
+    openvdb::tree::ValueAccessor<const BlockIndexTree> mBlockIndex;
     int mLo, mWidth;
     std::vector<float> mValues;
     std::vector<std::uint32_t> mInsideRows; // per (x, y): bit z - lo set when value >= isovalue
@@ -430,10 +435,11 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     buildBlockSet(grid.tree(), blocks, settings.threaded);
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
-    // Linear crossings read one voxel beyond the block; high-order stencils three (SPEC §2).
-    const int halo = settings.uncertainty ? 3 : 1;
+    // Classifying cells reads one voxel beyond the block; high-order stencils three (SPEC §2).
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(
-        std::cref(grid.tree()), std::cref(blocks.index), halo);
+        std::cref(grid.tree()), std::cref(blocks.index), 1);
+    tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(
+        std::cref(grid.tree()), std::cref(blocks.index), settings.uncertainty ? 3 : 1);
     std::atomic<std::size_t> done{0};
     const std::size_t work = 3 * blockCount;
 
@@ -478,7 +484,7 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         if (records[b].vertexCount == 0 && records[b].triangleCount == 0) return;
         const Coord& origin = blocks.origins[b];
-        BlockScratch<TreeT>& s = scratch.local();
+        BlockScratch<TreeT>& s = stencilScratch.local();
         s.gatherAndClassify(origin, isovalue, cellBox);
         fillVertices(s, origin, records[b], vertexOffsets[b], context, columns);
         if (records[b].triangleCount == 0) return;
