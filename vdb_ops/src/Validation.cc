@@ -448,7 +448,24 @@ Agreement compareColumns(const std::vector<float>& estimate, const std::vector<f
     return g;
 }
 
-double observedOrder(double coarseError, double fineError) { return std::log2(coarseError / fineError); }
+double observedOrder(double coarseError, double coarseSpacing, double fineError, double fineSpacing)
+{
+    return std::log(coarseError / fineError) / std::log(coarseSpacing / fineSpacing);
+}
+
+double fittedOrder(const std::vector<double>& errors, const std::vector<double>& spacings)
+{
+    const std::size_t n = std::min(errors.size(), spacings.size());
+    double sx = 0, sy = 0, sxx = 0, sxy = 0;
+    for (std::size_t q = 0; q < n; ++q) {
+        const double x = std::log(spacings[q]), y = std::log(errors[q]);
+        sx += x;
+        sy += y;
+        sxx += x * x;
+        sxy += x * y;
+    }
+    return (double(n) * sxy - sx * sy) / (double(n) * sxx - sx * sx);
+}
 
 // ---- Experiments ----------------------------------------------------------------------------
 

@@ -169,7 +169,11 @@ struct ConvergenceRow {
 };
 ConvergenceRow convergenceRow(const std::string& field, int resolution);
 
-/// log2 of the ratio of successive RMS errors (h halves between rows).
-double observedOrder(double coarseError, double fineError);
+/// Observed order between two resolutions: log(e1 / e2) / log(h1 / h2).
+double observedOrder(double coarseError, double coarseSpacing, double fineError, double fineSpacing);
+
+/// Least-squares slope of log(error) against log(h) over all the points: the order fitted to
+/// a whole sequence, less sensitive than one pair to how the edges' crossings are spread.
+double fittedOrder(const std::vector<double>& errors, const std::vector<double>& spacings);
 
 } // namespace isouq
