@@ -45,6 +45,8 @@ void cookThreshold(CookContext& ctx)
     const ParmValues& p = ctx.parms;
     const std::string measure = p.getString("measure");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    // Add the column before taking references: adding may move the others.
+    std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>("above", out->mesh.vertexCount());
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
 
     std::vector<double> sorted;
@@ -55,7 +57,6 @@ void cookThreshold(CookContext& ctx)
     const bool byPercentile = p.getString("mode") == "percentile";
     const double threshold = byPercentile ? percentileOf(sorted, p.getFloat("percentile")) : p.getFloat("value");
 
-    std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>("above", values.size());
     std::size_t count = 0;
     for (std::size_t v = 0; v < values.size(); ++v) count += above[v] = double(values[v]) > threshold;
     if (sorted.size() < values.size())

@@ -93,6 +93,12 @@ void cookErrorEstimate(CookContext& ctx)
     const LoadedVolume& volume = inputVolume(ctx);
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
     AttributeTable& a = out->mesh.vertexAttributes;
+    const std::size_t n = out->mesh.vertexCount();
+    // Add the columns before taking references: adding may move the others.
+    a.add<float>("err_est", n);
+    a.add<float>("err_bound", n);
+    std::vector<float>& est = *a.find<float>("err_est");
+    std::vector<float>& bound = *a.find<float>("err_bound");
     const auto* ei = a.find<std::int32_t>("edge_i");
     const auto* ej = a.find<std::int32_t>("edge_j");
     const auto* ek = a.find<std::int32_t>("edge_k");
@@ -109,9 +115,6 @@ void cookErrorEstimate(CookContext& ctx)
     if (lo && hi) bounds = openvdb::CoordBBox(openvdb::Coord(lo->value()), openvdb::Coord(hi->value()));
     const openvdb::Vec3d voxel = grid.voxelSize();
 
-    const std::size_t n = out->mesh.vertexCount();
-    std::vector<float>& est = a.add<float>("err_est", n);
-    std::vector<float>& bound = a.add<float>("err_bound", n);
     auto acc = grid.getConstAccessor();
     std::size_t skipped = 0;
     for (std::size_t v = 0; v < n; ++v) {
