@@ -68,7 +68,7 @@ def test_vertex_attributes_equal_meshio(tmp_path):
 
 
 def test_current_cli_subset_imports(tmp_path):
-    """What the CLI writes today: edge_i edge_j edge_k edge_axis t_linear only."""
+    """What `isouq mesh --linear-only` writes: edge_i edge_j edge_k edge_axis t_linear only."""
     positions, faces, attrs, _, comments = plyfixture.sphere_fixture(n=10, radius=3.0)
     subset = {k: attrs[k] for k in ("edge_i", "edge_j", "edge_k", "edge_axis", "t_linear")}
     path = str(tmp_path / "subset.ply")
