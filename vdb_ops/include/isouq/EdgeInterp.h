@@ -421,6 +421,21 @@ struct CubicEdge {
     }
 };
 
+namespace edge_interp_internal {
+/// Nonlinear-weight combination of the three cubic candidates with linear weights @a g when all
+/// six values exist (reported as order @a fullOrder); WENO4 and the cubic chain otherwise.
+template <typename ValueT>
+inline EdgeCrossingT<ValueT> wenoFamilyCrossing(const std::array<ValueT, 6>& f, std::uint8_t available,
+    ValueT k, const Quadratic* g, std::uint8_t fullOrder)
+{
+    const EdgeStencil s = makeStencil(f);
+    const double tol = tolerance<ValueT>();
+    if (!hasAll(available, kStencilAll)) return result<ValueT>(weno4Chain(s, available, double(k), tol));
+    const EdgePoly p[3] = {cubicS1(s), cubicS2(s), cubicS3(s)};
+    return result<ValueT>({wenoCrossing(s, double(k), p, g, 3, 0, 5, tol), fullOrder});
+}
+} // namespace edge_interp_internal
+
 /// WENO with t-dependent linear weights: sixth order on smooth data, non-oscillatory at jumps
 /// (paper sec. 3.4 made consistent, SPEC §2). Fallback: WENO4, then the cubic chain.
 struct WenoEdge {
@@ -431,11 +446,7 @@ struct WenoEdge {
     static EdgeCrossingT<ValueT> crossing(const std::array<ValueT, 6>& f, std::uint8_t available, ValueT k)
     {
         using namespace edge_interp_internal;
-        const EdgeStencil s = makeStencil(f);
-        const double tol = tolerance<ValueT>();
-        if (!hasAll(available, kStencilAll)) return result<ValueT>(weno4Chain(s, available, double(k), tol));
-        const EdgePoly p[3] = {cubicS1(s), cubicS2(s), cubicS3(s)};
-        return result<ValueT>({wenoCrossing(s, double(k), p, kWeno6Linear, 3, 0, 5, tol), 6});
+        return wenoFamilyCrossing(f, available, k, kWeno6Linear, 6);
     }
 };
 
@@ -449,11 +460,7 @@ struct WenoPaperEdge {
     static EdgeCrossingT<ValueT> crossing(const std::array<ValueT, 6>& f, std::uint8_t available, ValueT k)
     {
         using namespace edge_interp_internal;
-        const EdgeStencil s = makeStencil(f);
-        const double tol = tolerance<ValueT>();
-        if (!hasAll(available, kStencilAll)) return result<ValueT>(weno4Chain(s, available, double(k), tol));
-        const EdgePoly p[3] = {cubicS1(s), cubicS2(s), cubicS3(s)};
-        return result<ValueT>({wenoCrossing(s, double(k), p, kWenoPaperLinear, 3, 0, 5, tol), 4});
+        return wenoFamilyCrossing(f, available, k, kWenoPaperLinear, 4);
     }
 };
 
