@@ -413,22 +413,30 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
         }
         pairUp(walk);
     }
-    // Chain the segments into loops (each key starts one segment and ends one) and fan them.
+    // Chain the segments into loops (each key starts one segment and ends one) and fan them. A
+    // loop of two is the same chord along one refined edge from both faces: it encloses nothing
+    // (the surfaces of the cells beyond those faces meet along that chord) and is skipped.
     std::vector<bool> used(segments.size(), false);
+    std::vector<std::size_t> loop;
     std::uint16_t loopIndex = 0;
     for (std::size_t first = 0; first < segments.size(); ++first) {
         if (used[first]) continue;
-        const Key centre{u, std::uint16_t(kCentre + loopIndex++)};
-        patch.centres.push_back(centre);
+        loop.clear();
         for (std::size_t s = first; !used[s];) {
             used[s] = true;
-            patch.members.push_back(segments[s].first);
-            patch.triangles.push_back({centre, segments[s].first, segments[s].second});
+            loop.push_back(s);
             for (std::size_t n = 0; n < segments.size(); ++n)
                 if (segments[n].first == segments[s].second) {
                     s = n;
                     break;
                 }
+        }
+        if (loop.size() < 3) continue;
+        const Key centre{u, std::uint16_t(kCentre + loopIndex++)};
+        patch.centres.push_back(centre);
+        for (std::size_t s : loop) {
+            patch.members.push_back(segments[s].first);
+            patch.triangles.push_back({centre, segments[s].first, segments[s].second});
         }
         patch.memberOffsets.push_back(std::uint32_t(patch.members.size()));
     }
