@@ -68,6 +68,10 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
         s["triangles"].get<std::size_t>(), s["components"].get<std::size_t>(),
         s["boundary_edges"].get<std::size_t>(), s["non_manifold_edges"].get<std::size_t>(),
         s["isovalue"].get<double>(), s["method"].get<std::string>().c_str());
+    if (s.contains("hidden") && s["hidden"].contains("output"))
+        std::printf("wrote %s: hidden features, %zu -> %zu components\n",
+            s["hidden"]["output"].get<std::string>().c_str(), s["hidden"]["components_before"].get<std::size_t>(),
+            s["hidden"]["components_after"].get<std::size_t>());
     if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", summaryPath.c_str());
 }
 
@@ -160,6 +164,13 @@ int main(int argc, char** argv)
     addParmOptions(*mesh, nodeType("mesh"), meshParms);
     addParmOptions(*mesh, nodeType("write_summary"), summaryParms);
     mesh->get_option("--summary")->default_str("");
+    bool hiddenFeatures = false;
+    std::string hiddenOut;
+    nlohmann::json hiddenParms = nlohmann::json::object();
+    mesh->add_flag("--hidden-features", hiddenFeatures,
+        "Also recover hidden features (paper sec. 4.2): the summary's 'hidden' block");
+    addParmOptions(*mesh, nodeType("hidden_features"), hiddenParms);
+    mesh->add_option("--hidden-out", hiddenOut, "With --hidden-features: write that mesh too (.ply)");
     mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     mesh->footer(kMeshExamples);
@@ -213,6 +224,9 @@ int main(int argc, char** argv)
             MeshJob job = meshJobFrom(readParms, meshParms, plyParms);
             job.summaryPath = summaryParms.value("path", std::string());
             job.threads = threads;
+            job.hiddenFeatures = hiddenFeatures || !hiddenOut.empty();
+            job.subdivisions = hiddenParms.value("subdivisions", 4);
+            job.hiddenOutput = hiddenOut;
             return runJob(job, quiet);
         }
         if (*demo) {

@@ -2,7 +2,10 @@
 #include "isouq/nodes/MeshJob.h"
 
 #include <isouq/Diagnostics.h>
+#include <isouq/HiddenFeatures.h>
 #include <isouq/MeshIO.h>
+#include <isouq/MeshTopology.h>
+#include <isouq/Validation.h>
 
 #include <tbb/global_control.h>
 
@@ -38,11 +41,14 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     // Fail on unwritable outputs before any heavy work.
     checkWritable(job.output);
     if (!job.summaryPath.empty()) checkWritable(job.summaryPath);
+    if (!job.hiddenOutput.empty()) checkWritable(job.hiddenOutput);
 
     nlohmann::json timings;
     StageClock clock;
     if (interrupter) interrupter->start("Loading");
-    const LoadedVolume volume = loadVolume(job.volume, interrupter);
+    VolumeRequest request = job.volume;
+    if (job.hiddenFeatures && request.keep == KeepBlocks::Crossing) request.keep = KeepBlocks::CrossingOrHidden;
+    const LoadedVolume volume = loadVolume(request, interrupter);
     if (interrupter) interrupter->end();
     clock.lap(timings, "load");
     if (notes && volume.isovalueSource != "given")
@@ -64,7 +70,32 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     Mesh mesh = extractIsosurface(*volume.grid, settings, interrupter);
     clock.lap(timings, "mesh");
 
+    if (job.truth && job.uncertainty && volume.truth) {
+        // addTruthColumns holds pointers to columns while adding some: make room first.
+        mesh.vertexAttributes.columns().reserve(mesh.vertexAttributes.columns().size() + 16);
+        addTruthColumns(mesh, *volume.truth, settings.isovalue);
+        clock.lap(timings, "truth");
+    }
+
+    Mesh hiddenMesh;
+    HiddenFeatureStats hiddenStats;
+    if (job.hiddenFeatures) {
+        HiddenFeatureSettings hidden;
+        hidden.subdivisions = job.subdivisions;
+        hiddenMesh = addHiddenFeatures(*volume.grid, mesh, settings, hidden, &hiddenStats, interrupter);
+        clock.lap(timings, "hidden");
+    }
+
     nlohmann::json summary = summarizeMesh(mesh);
+    if (job.hiddenFeatures) {
+        const MeshTopologyStats after = measureTopology(hiddenMesh);
+        summary["hidden"] = {{"cells_flagged", hiddenStats.cellsFlagged}, {"cells_total", hiddenStats.cellsTotal},
+            {"fraction", hiddenStats.fraction()}, {"cells_refined", hiddenStats.cellsRefined},
+            {"cells_transition", hiddenStats.cellsTransition}, {"components_before", summary["components"]},
+            {"components_after", after.components}, {"boundary_edges", after.boundaryEdges},
+            {"subdivisions", job.subdivisions}};
+        if (!job.hiddenOutput.empty()) summary["hidden"]["output"] = job.hiddenOutput;
+    }
     clock.lap(timings, "measure");
     summary["input"] = job.volume.input;
     summary["description"] = volume.description;
@@ -81,6 +112,7 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     ply.isovalue = volume.isovalue;
     ply.method = summary["method"].get<std::string>();
     writePly(mesh, job.output, ply);
+    if (!job.hiddenOutput.empty()) writePly(hiddenMesh, job.hiddenOutput, ply);
     clock.lap(timings, "write");
     summary["timings_ms"] = timings;
     if (!job.summaryPath.empty()) writeTextFileAtomic(job.summaryPath, summary.dump(2) + "\n");

@@ -1,10 +1,14 @@
-// isouq nodes: the nodes that touch a volume — read_volume, mesh, error_estimate (SPEC §3, §5,
-// §8). The only translation unit of the node layer that reads grids.
+// isouq nodes: the nodes that touch a volume — read_volume, mesh, error_estimate,
+// hidden_features, truth (SPEC §3-§5, §8). The only translation unit of the node layer that
+// reads grids.
 #include "NodeFamilies.h"
 
 #include <isouq/Diagnostics.h>
 #include <isouq/ErrorEstimate.h>
+#include <isouq/HiddenFeatures.h>
 #include <isouq/MarchingCubes.h>
+#include <isouq/MeshTopology.h>
+#include <isouq/Validation.h>
 #include <isouq/VolumeSources.h>
 
 #include <cmath>
@@ -82,6 +86,7 @@ void cookMesh(CookContext& ctx)
     out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
     out->isovalue = settings.isovalue;
     out->method = linearOnly ? "linear" : p.getString("method");
+    out->uncertainty = !linearOnly;
     out->info["input"] = volume.description;
     ctx.outputs["mesh"].mesh = std::move(out);
 }
@@ -139,6 +144,62 @@ void cookErrorEstimate(CookContext& ctx)
         if (v % 4096 == 0 && openvdb::util::wasInterrupted(ctx.interrupter)) throw InterruptedError();
     }
     if (skipped) ctx.warn("skipped " + std::to_string(skipped) + " refined (hidden) vertices: no edge of the grid");
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
+/// The settings a mesh node used, for operators that continue its work.
+MeshSettings settingsOf(const MeshData& m)
+{
+    MeshSettings settings;
+    settings.isovalue = m.isovalue;
+    settings.uncertainty = m.uncertainty;
+    settings.provenance = true;
+    const auto method = edgeMethodFromString(m.method);
+    if (!method) throw std::invalid_argument("input 'mesh' must come from a mesh node (its method is " + m.method + ")");
+    settings.method = *method;
+    return settings;
+}
+
+/// Paper sec. 4.2, SPEC §4: the standard mesh plus refined flagged cells and fan patches.
+void cookHiddenFeatures(CookContext& ctx)
+{
+    const LoadedVolume& volume = inputVolume(ctx);
+    const MeshData& standard = inputMesh(ctx);
+    HiddenFeatureSettings hidden;
+    hidden.subdivisions = ctx.parms.getInt("subdivisions");
+    hidden.filter = ctx.parms.getBool("filter");
+    if (volume.keptBlocks < volume.denseBlocks && !ctx.parms.getBool("filter"))
+        ctx.warn("a dense source read with keep=crossing may miss hidden features far from crossings; "
+                 "read it with keep=crossing_or_hidden");
+    HiddenFeatureStats stats;
+    auto out = std::make_shared<MeshData>(standard);
+    out->mesh = addHiddenFeatures(*volume.grid, standard.mesh, settingsOf(standard), hidden, &stats, ctx.interrupter);
+    const MeshTopologyStats before = measureTopology(standard.mesh), after = measureTopology(out->mesh);
+    out->info["hidden"] = {{"cells_flagged", stats.cellsFlagged}, {"cells_total", stats.cellsTotal},
+        {"fraction", stats.fraction()}, {"cells_refined", stats.cellsRefined},
+        {"cells_transition", stats.cellsTransition}, {"components_before", before.components},
+        {"components_after", after.components}, {"boundary_edges", after.boundaryEdges},
+        {"subdivisions", hidden.subdivisions}};
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
+/// SPEC §3 measured errors where the field is known (field: and formula: inputs).
+void cookTruth(CookContext& ctx)
+{
+    const LoadedVolume& volume = inputVolume(ctx);
+    if (!volume.truth) throw std::invalid_argument("input 'volume' has no exact field (only field: and formula: inputs do)");
+    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    // addTruthColumns keeps pointers to the edge columns while it adds columns: make room first
+    // so that adding moves nothing (reported to the validation engineer).
+    out->mesh.vertexAttributes.columns().reserve(out->mesh.vertexAttributes.columns().size() + 16);
+    TruthSettings settings;
+    settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
+    const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
+    if (report.failedProjections)
+        ctx.warn(std::to_string(report.failedProjections) + " vertices: the projection on the true surface "
+            "did not converge (dist_true is NaN there)");
+    out->info["truth"] = {{"multi_root_edges", report.multiRootEdges}, {"no_root_edges", report.noRootEdges},
+        {"failed_projections", report.failedProjections}};
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
@@ -207,6 +268,39 @@ void addVolumeNodes(std::vector<NodeType>& types)
     est.outputs = {{"mesh", "mesh", "The mesh with err_est and err_bound"}};
     est.cook = cookErrorEstimate;
     types.push_back(std::move(est));
+
+    NodeType hidden;
+    hidden.type = "hidden_features";
+    hidden.label = "Hidden Features";
+    hidden.description = "Refines the cells where the data turns around (slope rule) into m^3 tricubic subcells "
+                         "and patches transition cells with fans, without cracks (paper sec. 4.2, SPEC §4). "
+                         "Refined vertices have hidden = 1 and NaN method attributes.";
+    hidden.parms = {
+        ranged(parm("subdivisions", "Subdivisions", ParmType::Int, 4, "m: each refined cell becomes m^3 subcells",
+                   "--subdivisions"),
+            std::make_pair(2.0, 8.0), std::make_pair(1.0, 64.0)),
+        parm("filter", "Filter", ParmType::Bool, false,
+            "Refine only where the tricubic reveals a sign the cell's corners hide"),
+    };
+    hidden.inputs = {{"volume", "volume", "The volume the mesh came from"},
+        {"mesh", "mesh", "The standard mesh, straight from a mesh node"}};
+    hidden.outputs = {{"mesh", "mesh", "The mesh with hidden features and the `hidden` block (components "
+                                       "before and after)"}};
+    hidden.cook = cookHiddenFeatures;
+    types.push_back(std::move(hidden));
+
+    NodeType truth;
+    truth.type = "truth";
+    truth.label = "Truth";
+    truth.description = "Measured errors against the exact field of a field: or formula: input (SPEC §3): "
+                        "err_true_<method> on each vertex's edge and dist_true to the true surface.";
+    truth.parms = {parm("per_method_distance", "Per-Method Distance", ParmType::Bool, false,
+        "Also dist_true_<method> for every method's crossing")};
+    truth.inputs = {{"volume", "volume", "A field: or formula: volume"},
+        {"mesh", "mesh", "A mesh of it with provenance"}};
+    truth.outputs = {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}};
+    truth.cook = cookTruth;
+    types.push_back(std::move(truth));
 }
 
 } // namespace isouq::nodes::nodes_internal

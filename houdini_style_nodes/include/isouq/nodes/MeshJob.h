@@ -20,6 +20,11 @@ struct MeshJob {
     EdgeMethod method = EdgeMethod::Weno; ///< --method: the primary method (positions)
     bool uncertainty = true;   ///< all methods and estimates; false = linear positions only
     int threads = 0;           ///< --threads (0: all cores)
+    bool hiddenFeatures = false; ///< --hidden-features: the summary's `hidden` block (SPEC §4, §8)
+    int subdivisions = 4;        ///< --subdivisions M
+    std::string hiddenOutput;    ///< --hidden-out HF.ply ("" for none)
+    /// field: and formula: inputs: err_true_<method> and dist_true against the exact field (SPEC §3).
+    bool truth = true;
 };
 
 /// Notes the job makes for the user (defaults it chose), one line each.

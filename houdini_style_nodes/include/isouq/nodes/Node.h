@@ -28,6 +28,7 @@ struct MeshData {
     Mesh mesh;
     float isovalue = 0.0f;
     std::string method;    ///< method of the positions ("linear", "weno", "blend", ...)
+    bool uncertainty = false; ///< meshed with every method and estimate (MeshSettings)
     nlohmann::json info = nlohmann::json::object(); ///< e.g. "hidden", "threshold", "box" blocks
 };
 
