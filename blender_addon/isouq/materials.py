@@ -35,7 +35,7 @@ def _fresh(name):
     return mat, mat.node_tree.nodes, mat.node_tree.links
 
 
-def _surface(nodes, links, colour_socket, emission=0.5):
+def _surface(nodes, links, colour_socket, emission=0.25):
     """Principled surface whose base and emission colour come from `colour_socket`: shaded
     for shape, bright enough that colours read as the legend's."""
     bsdf = nodes.new("ShaderNodeBsdfPrincipled")

@@ -6,42 +6,63 @@ import math
 
 import bpy
 import numpy as np
-from mathutils import Vector
+from mathutils import Euler, Vector
 
 from . import materials
 
 CAMERA, LIGHT = "ISOUQ_camera", "ISOUQ_sun"
+# Lit faces reach about the material colour (sun + world + emission ~ 1), so pixels read
+# against the legend; faces turned away keep about half of it.
+SUN_STRENGTH, WORLD_GREY = 0.6, 0.3
 
 
-def _bounds(objects):
-    pts = [obj.matrix_world @ Vector(c) for obj in objects for c in obj.bound_box]
-    if not pts:
+def _world_vertices(objects):
+    pts = []
+    for obj in objects:
+        co = np.empty(3 * len(obj.data.vertices))
+        obj.data.vertices.foreach_get("co", co)
+        m = np.array(obj.matrix_world, np.float64)
+        pts.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
+    pts = np.concatenate(pts) if pts else np.empty((0, 3))
+    if len(pts) == 0:
         raise ValueError("nothing visible to render")
-    a = np.array([tuple(p) for p in pts])
-    return a.min(axis=0), a.max(axis=0)
+    return pts
 
 
-def frame_camera(scene, objects, direction=(1.0, -1.2, 0.8), margin=1.1):
-    """An orthographic ISOUQ_camera looking at the objects' bounds along -direction, and a sun."""
-    lo, hi = _bounds(objects)
-    centre, diag = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
+def frame_camera(scene, objects, direction=(1.0, -1.2, 0.8), size=800, margin=1.06):
+    """An orthographic ISOUQ_camera looking along -direction that fits the objects' vertices
+    tightly: the longer image side is `size` pixels, the other follows the projected extent.
+    The sun shines from over the viewer's left shoulder."""
+    d = Vector(direction).normalized()
+    rotation = (-d).to_track_quat("-Z", "Y")
+    axes = np.array(rotation.to_matrix(), np.float64)          # columns: camera x, y, z
+    local = _world_vertices(objects) @ axes
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    extent = np.maximum(hi - lo, 1e-9)
     cam = bpy.data.objects.get(CAMERA)
     if cam is None:
         cam = bpy.data.objects.new(CAMERA, bpy.data.cameras.new(CAMERA))
         scene.collection.objects.link(cam)
     cam.data.type = "ORTHO"
-    cam.data.ortho_scale = diag * margin
-    cam.data.clip_end = diag * 10
-    d = Vector(direction).normalized()
-    cam.location = Vector(centre) + d * diag * 2
-    cam.rotation_euler = (-d).to_track_quat("-Z", "Y").to_euler()
+    cam.data.ortho_scale = float(extent[:2].max()) * margin
+    cam.data.clip_start = 0.01 * float(extent[2])
+    cam.data.clip_end = 3.0 * float(extent[2])
+    centre = (lo + hi) / 2
+    centre[2] = hi[2] + extent[2]                               # in front of the nearest point
+    cam.location = Vector(axes @ centre)
+    cam.rotation_euler = rotation.to_euler()
+    wide = extent[0] >= extent[1]
+    short = int(round(size * min(extent[:2]) / max(extent[:2])))
+    short = max(short + short % 2, size // 3)
+    scene.render.resolution_x, scene.render.resolution_y = (size, short) if wide else (short, size)
     scene.camera = cam
     sun = bpy.data.objects.get(LIGHT)
     if sun is None:
         sun = bpy.data.objects.new(LIGHT, bpy.data.lights.new(LIGHT, "SUN"))
         scene.collection.objects.link(sun)
-    sun.data.energy = 3.0
-    sun.rotation_euler = (math.radians(40), math.radians(10), math.radians(30))
+    sun.data.energy = SUN_STRENGTH
+    tilt = Euler((math.radians(-30), math.radians(-35), 0.0)).to_quaternion()
+    sun.rotation_euler = (rotation @ tilt).to_euler()
     return cam
 
 
@@ -49,7 +70,7 @@ def configure(scene, engine="BLENDER_EEVEE", size=800, samples=16):
     scene.render.engine = engine
     scene.render.resolution_x = scene.render.resolution_y = size
     scene.render.resolution_percentage = 100
-    scene.render.film_transparent = False
+    scene.render.film_transparent = True              # figures compose on white
     if engine == "CYCLES":
         scene.cycles.device = "CPU"
         scene.cycles.samples = samples
@@ -59,19 +80,20 @@ def configure(scene, engine="BLENDER_EEVEE", size=800, samples=16):
         scene.eevee.taa_render_samples = samples
     if scene.world is None:
         scene.world = bpy.data.worlds.new("ISOUQ_world")
-    scene.world.color = (0.8, 0.8, 0.8)
+    scene.world.color = (WORLD_GREY,) * 3
     scene.view_settings.view_transform = "Standard"   # colours as in the legend
 
 
 def render_view(context, objects, path, engine="BLENDER_EEVEE", size=800, exr_path=None,
-                aovs=("err_est", "hidden"), samples=16):
+                aovs=("err_est", "hidden"), samples=16, direction=(1.0, -1.2, 0.8)):
     """Renders `objects` (framed) to the PNG `path`; with `exr_path` also a multilayer EXR
     holding the combined pass and the shader AOVs `aovs`. Returns the paths written."""
     scene = context.scene
     configure(scene, engine, size, samples)
-    frame_camera(scene, [o for o in objects if not o.hide_render])
+    frame_camera(scene, [o for o in objects if not o.hide_render], direction, size)
     if exr_path:
         materials.ensure_aovs(context.view_layer, aovs)
+        context.view_layer.use_pass_z = True           # depth: which surface a pixel shows
     scene.render.image_settings.file_format = "PNG"
     scene.render.image_settings.color_mode = "RGBA"
     scene.render.filepath = path

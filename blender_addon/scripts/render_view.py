@@ -5,12 +5,15 @@
 #       --view standard|heatmap|threshold|methods|compare|hidden|combined --out OUT.png \
 #       [--exr OUT.exr] [--engine eevee|cycles] [--size 800] [--measure err_est] \
 #       [--threshold V | --percentile P] [--inside weno --outside linear] [--compare-method weno] \
-#       [--cdf CDF.png] [--legend LEGEND.png]
+#       [--cdf CDF.png] [--legend LEGEND.png] [--direction X,Y,Z] [--clip-percentile P]
+#       [--figure FIG.png --title TEXT]
 #
 # Views (paper sec. 4.3): standard (opaque blue, any isouq mesh), heatmap C4, threshold C1
 # (binary map), methods C3 (inside/outside the threshold), compare C6 (primary and
 # --compare-method side by side), hidden C6 (hidden-feature surface in transparent orange over
-# standard MC in blue), combined (heat map + hidden features). Errors: one line, exit status 2.
+# standard MC in blue), combined (heat map + hidden features). --figure composes the render
+# with its title and key (colorbar or colour swatches; the CDF beside the threshold view) for
+# documents. Errors: one line, exit status 2.
 
 import argparse
 import os
@@ -19,6 +22,7 @@ import sys
 
 import addon_utils
 import bpy
+import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -45,13 +49,53 @@ def parse(argv):
     p.add_argument("--compare-method", default="weno")
     p.add_argument("--cdf", help="also write the C1 CDF plot here")
     p.add_argument("--legend", help="also write the C4 legend here")
-    return p.parse_args(argv[argv.index("--") + 1:] if "--" in argv else [])
+    p.add_argument("--direction", default="1,-1.2,0.8",
+                   help="camera position relative to the mesh (it looks back along it)")
+    p.add_argument("--clip-percentile", type=float,
+                   help="heat-map range up to this percentile (above it: the top colour)")
+    p.add_argument("--figure", help="also write the render with title and key here")
+    p.add_argument("--title", help="figure title (default: mesh, method, view)")
+    args = p.parse_args(argv[argv.index("--") + 1:] if "--" in argv else [])
+    try:
+        args.direction = tuple(float(v) for v in args.direction.split(","))
+    except ValueError:
+        args.direction = ()
+    if len(args.direction) != 3 or not any(args.direction):
+        p.error("--direction needs three numbers X,Y,Z, not all zero")
+    return args
+
+
+def linear_to_srgb(c):
+    return 12.92 * c if c <= 0.0031308 else 1.055 * c ** (1 / 2.4) - 0.055
+
+
+def figure_key(args, s, obj, clipped):
+    """(colorbar, swatches, cdf) of the figure for this view (plots.figure)."""
+    from isouq import materials, views
+    bar = dict(vmin=s.heat_min, vmax=s.heat_max, measure=s.measure,
+               colormap=materials.HEAT_COLORMAP, extend="max" if clipped else "neither")
+    orange = (materials.HIDDEN_ORANGE[:3])
+    srgb = lambda rgba: tuple(linear_to_srgb(c) for c in rgba[:3])
+    if args.view == "threshold":
+        t = s.threshold_value
+        return None, [(f"{s.measure} <= {t:.3g}", srgb(s.colour_below), 1.0),
+                      (f"{s.measure} > {t:.3g}", srgb(s.colour_above), 1.0)], \
+            dict(values=views.measure_values(obj, s.measure), threshold=t, measure=s.measure)
+    if args.view == "hidden":
+        return None, [("standard MC", srgb(materials.STANDARD_BLUE), 1.0),
+                      ("with hidden features", srgb(orange), materials.HIDDEN_ALPHA)], None
+    if args.view == "combined":
+        return bar, [("refined (hidden feature)", srgb(orange), 1.0)], None
+    if args.view == "standard" or obj.data.attributes.get(s.measure) is None:
+        return None, [], None
+    return bar, [], None
+
 
 
 def main():
     args = parse(sys.argv)
     addon_utils.enable("isouq", default_set=False)
-    from isouq import render, views
+    from isouq import plots, render, views
 
     bpy.ops.wm.read_homefile(use_empty=True)
     addon_utils.enable("isouq", default_set=False)
@@ -73,8 +117,16 @@ def main():
         obj.isouq.partner, hidden.isouq.partner = hidden, obj
 
     has_measure = obj.data.attributes.get(s.measure) is not None
+    clipped = False
     if args.view == "heatmap" or has_measure:
         legend = views.apply_heatmap(context, obj)
+        if args.clip_percentile is not None:
+            values = views.measure_values(obj, s.measure)
+            top = float(np.nanpercentile(values, args.clip_percentile))
+            clipped = top < s.heat_max
+            s.heat_max = top                 # updates the material's range (props.py)
+            legend = plots.legend_plot(legend, s.heat_min, s.heat_max, s.measure,
+                                       extend="max" if clipped else "neither")
     if args.view == "standard":
         from isouq import materials
         materials.assign(obj, materials.standard_material())
@@ -88,9 +140,12 @@ def main():
         views.show_hidden(context, obj)
     elif args.view == "combined":
         views.combined_view(context, obj)
+        if args.clip_percentile is not None:
+            s.heat_max = float(np.nanpercentile(views.measure_values(obj.isouq.partner, s.measure),
+                                                args.clip_percentile))
+            clipped = True
     if args.cdf:
         values = views.measure_values(obj, s.measure)
-        from isouq import plots
         plots.cdf_plot(args.cdf, values, views.resolve_threshold(s, values), s.measure)
     if args.legend and has_measure:
         shutil.copy(legend, args.legend)
@@ -99,7 +154,12 @@ def main():
     engine = "CYCLES" if args.engine == "cycles" else "BLENDER_EEVEE"
     written = render.render_view(context, objects, os.path.abspath(args.out), engine, args.size,
                                  os.path.abspath(args.exr) if args.exr else None,
-                                 (s.measure, "hidden"), args.samples)
+                                 (s.measure, "hidden"), args.samples, args.direction)
+    if args.figure:
+        title = args.title or f"{obj.name} ({obj.isouq.method_shown or 'isouq'}): {args.view}"
+        bar, swatches, cdf = figure_key(args, s, obj, clipped)
+        written.append(plots.figure(os.path.abspath(args.figure), written[0], title, bar,
+                                    swatches, cdf))
     print("isouq render:", ", ".join(written))
 
 
