@@ -73,7 +73,9 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
 
     def _prepare(self, context):
         s = context.scene.isouq
-        volume, grid, path = s.volume, s.grid, bpy.path.abspath(s.input_path)
+        volume, grid, path = s.volume, s.grid, s.input_path
+        if not pipeline.is_generated(path):
+            path = bpy.path.abspath(path)
         if volume is not None:
             if volume.data.packed_file is not None:
                 raise ValueError(f"volume '{volume.name}' is packed: unpack it to a .vdb file")
@@ -82,14 +84,15 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
                 grid = volume.data.grids.active.name
         if not path:
             raise ValueError("choose a .vdb file or a Volume object")
-        if not os.path.isfile(path):
+        if not pipeline.is_generated(path) and not os.path.isfile(path):
             raise ValueError(f"input file not found: {path}")
         prefs = _preferences(context)
         binary, tried = pipeline.find_binary(prefs.binary if prefs else "")
         if binary is None:
             raise ValueError(f"isouq binary not found ({tried}); set it in the add-on preferences")
         request = pipeline.MeshRequest(path, s.isovalue if s.use_isovalue else None, s.method,
-                                       s.hidden_features, s.subdivisions, grid)
+                                       s.hidden_features, s.subdivisions, grid,
+                                       resolution=s.resolution)
         self._volume = volume
         return pipeline.Job(request, binary).start()
 
@@ -111,7 +114,7 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             job.cleanup()
 
     def _import(self, context, job):
-        name = os.path.splitext(os.path.basename(job.request.input))[0]
+        name = pipeline.input_name(job.request.input)
         created = []
         try:
             obj = views.import_ply(context, job.mesh_path, name, "MESH")

@@ -45,6 +45,20 @@ def find_binary(preference=""):
     return None, "PATH and the repo's build*/houdini_style_nodes/isouq"
 
 
+def is_generated(path):
+    """A `field:NAME` or `formula:EXPR` input (SPEC §8): computed by the CLI, not a file."""
+    return path.startswith(("field:", "formula:"))
+
+
+def input_name(path):
+    """Object name for an input: the file's stem, or the field's name."""
+    if path.startswith("field:"):
+        return path[len("field:"):]
+    if path.startswith("formula:"):
+        return "formula"
+    return os.path.splitext(os.path.basename(path))[0]
+
+
 @dataclass
 class MeshRequest:
     """Arguments of `isouq mesh INPUT -o OUT.ply ...`."""
@@ -55,6 +69,7 @@ class MeshRequest:
     subdivisions: int = 4
     grid: str = ""
     threads: int = 0
+    resolution: int = 0
 
     def command(self, binary, out, summary, hidden_out=None):
         if self.method not in METHODS:
@@ -68,6 +83,8 @@ class MeshRequest:
                 cmd += ["--hidden-out", hidden_out]
         if self.grid:
             cmd += ["--grid", self.grid]
+        if self.resolution > 0:
+            cmd += ["--resolution", str(self.resolution)]
         if self.threads > 0:
             cmd += ["--threads", str(self.threads)]
         return cmd

@@ -52,7 +52,10 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     # C6 comparison
     compare_method: EnumProperty(name="Compare with", items=VIEW_METHODS, default="linear")
     # pipeline
-    input_path: StringProperty(name="VDB file", subtype="FILE_PATH")
+    input_path: StringProperty(name="Input", subtype="FILE_PATH",
+                               description="A .vdb or .raw file, or field:NAME / formula:EXPR (SPEC §8)")
+    resolution: IntProperty(name="Resolution", default=0, min=0, max=4096,
+                            description="field:/formula: samples per axis (--resolution); 0: the CLI's")
     volume: PointerProperty(name="Volume", type=bpy.types.Object,
                             poll=lambda self, obj: obj.type == "VOLUME")
     use_isovalue: BoolProperty(name="Isovalue", default=False,

@@ -7,6 +7,8 @@ import os
 import bpy
 import bpy.utils.previews
 
+from . import pipeline
+
 _previews = None
 _paths = {}
 
@@ -72,6 +74,8 @@ class VIEW3D_PT_isouq_pipeline(_Panel, bpy.types.Panel):
     def draw(self, context):
         s, col = context.scene.isouq, self.layout.column()
         col.prop(s, "input_path")
+        if pipeline.is_generated(s.input_path):
+            col.prop(s, "resolution")
         col.prop(s, "volume")
         col.prop(s, "grid")
         row = col.row(align=True)
