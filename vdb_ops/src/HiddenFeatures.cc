@@ -21,6 +21,7 @@
 #include "isouq/Tricubic.h"
 
 #include <openvdb/thread/Threading.h>
+#include <openvdb/tools/Morphology.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -44,36 +45,59 @@ using Accessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
 constexpr int kBlock = 8;
 constexpr int kMaxSubdivisions = 64;
 
-/// A vertex made or used by refinement. kind 0..2: crossing of the subcell edge along that
-/// axis from fine-lattice point p (m * voxel + sub); kCoarse + axis: the standard vertex of
-/// the grid edge from voxel p; kCentre + l: centre of loop l of transition cell p.
-struct Key {
-    Coord p;
-    std::uint16_t kind;
-    bool operator<(const Key& o) const { return p < o.p || (p == o.p && kind < o.kind); }
-    bool operator==(const Key& o) const { return p == o.p && kind == o.kind; }
-};
-constexpr std::uint16_t kCoarse = 3, kCentre = 6;
+/// A vertex of a new triangle. The top two bits say what it is:
+///  kFineRef:   the crossing of a subcell edge, (x, y, z, axis) of its lower point on the fine
+///              lattice m * voxel + sub, relative to the lattice origin (20 bits each);
+///  kCoarseRef: the standard vertex of a grid edge, (x, y, z, axis) of its lower voxel, relative
+///              to the voxel origin;
+///  kCentreRef: a fan centre, by its index in the patch that made it.
+using Ref = std::uint64_t;
+constexpr Ref kFineRef = 0, kCoarseRef = Ref(1) << 62, kCentreRef = Ref(2) << 62, kKindMask = Ref(3) << 62;
+constexpr int kCoordBits = 20;
 
-struct FineVertex {
-    Key key;
-    Vec3d index; // index-space position
+/// Packs lattice points into Refs; the origins make every coordinate of the refined region fit.
+struct Packer {
+    Coord fineOrigin, voxelOrigin;
+
+    static Ref pack(const Coord& rel, int axis)
+    {
+        return (Ref(std::uint32_t(rel[0])) << 42) | (Ref(std::uint32_t(rel[1])) << 22) |
+               (Ref(std::uint32_t(rel[2])) << 2) | Ref(axis);
+    }
+    static Coord unpack(Ref r)
+    {
+        const Ref mask = (Ref(1) << kCoordBits) - 1;
+        return Coord(int((r >> 42) & mask), int((r >> 22) & mask), int((r >> 2) & mask));
+    }
+    static int axisOf(Ref r) { return int(r & 3); }
+    Ref fine(const Coord& p, int axis) const { return kFineRef | pack(p - fineOrigin, axis); }
+    Coord finePoint(Ref r) const { return unpack(r) + fineOrigin; }
+    Ref coarse(const Coord& v, int axis) const { return kCoarseRef | pack(v - voxelOrigin, axis); }
+    bool coarseFits(const Coord& v) const
+    {
+        for (int i = 0; i < 3; ++i)
+            if (v[i] - voxelOrigin[i] < 0 || v[i] - voxelOrigin[i] >= (1 << kCoordBits)) return false;
+        return true;
+    }
+};
+
+struct FineCrossing {
+    Ref key;
+    float t; // along the subcell edge from its lower point
 };
 
 /// What one chunk of refined or transition cells adds. Triangles face from inside (>= k)
 /// towards outside, as the case tables' do.
 struct Patch {
-    std::vector<FineVertex> vertices; // may repeat a key another cell also writes (same bits)
-    std::vector<std::array<Key, 3>> triangles;
-    std::vector<Key> centres;                 // transition loops: centre key,
-    std::vector<std::uint32_t> memberOffsets; // and members[memberOffsets[i]..[i+1])
-    std::vector<Key> members;
+    std::vector<FineCrossing> crossings; // refined cells: every crossing of their subcell edges
+    std::vector<std::array<Ref, 3>> triangles;
+    std::vector<Ref> members;             // transition loops: their vertices,
+    std::vector<std::uint32_t> memberEnds; // one end per loop (= per fan centre)
+    std::vector<Coord> centreCells;        // the transition cell of each loop
 };
 
-inline bool contains(const std::vector<Coord>& sorted, const Coord& c)
-{
-    return std::binary_search(sorted.begin(), sorted.end(), c);
-}
+using CellSet = openvdb::BoolTree;
+using CellSetAccessor = openvdb::tree::ValueAccessor<const CellSet>;
 
 /// Runs body(i) for i in [0, count) in parallel (or serially), polling the interrupter.
 template <typename Body>
@@ -255,68 +279,6 @@ void gatherStencil(const Accessor& acc, const Coord& c, float* stencil)
             for (int d = 0; d < 4; ++d) stencil[16 * a + 4 * b + d] = acc.getValue(c.offsetBy(a - 1, b - 1, d - 1));
 }
 
-/// Subdivision values of one cell and the fine lattice around it.
-struct RefinedCell {
-    Coord cell;
-    int m;
-    double k;
-    std::vector<double> sub;
-
-    double value(const Coord& local) const { return sub[subIndex(local[0], local[1], local[2], m + 1)]; }
-    bool inside(const Coord& local) const { return value(local) >= k; }
-    Coord fine(const Coord& local) const { return Coord(m * cell[0], m * cell[1], m * cell[2]) + local; }
-
-    /// The vertex on the subcell edge between neighbouring sub-points @a a and @a b (local), which
-    /// straddle k; it is written to @a patch and keyed by the edge's lower fine point.
-    Key crossing(const Coord& a, const Coord& b, Patch& patch) const
-    {
-        const bool aLower = a < b;
-        const Coord& lo = aLower ? a : b;
-        const Coord& hi = aLower ? b : a;
-        int axis = 0;
-        while (hi[axis] == lo[axis]) ++axis;
-        const double f0 = value(lo), f1 = value(hi);
-        const double t = std::clamp((k - f0) / (f1 - f0), 0.0, 1.0);
-        const Coord p = fine(lo);
-        Vec3d index(p[0], p[1], p[2]);
-        index[axis] += t;
-        const Key key{p, std::uint16_t(axis)};
-        patch.vertices.push_back(FineVertex{key, index / double(m)});
-        return key;
-    }
-};
-
-/// Marching cubes on the m^3 subcells of a refined cell (McTables.h, inside is >= k).
-void meshRefinedCell(const RefinedCell& rc, Patch& patch)
-{
-    const int m = rc.m;
-    for (int p = 0; p < m; ++p)
-        for (int q = 0; q < m; ++q)
-            for (int r = 0; r < m; ++r) {
-                const Coord base(p, q, r);
-                int cubeCase = 0;
-                for (int c = 0; c < 8; ++c) {
-                    const auto& o = kMcCornerOffset[c];
-                    cubeCase |= int(rc.inside(base.offsetBy(o.x, o.y, o.z))) << c;
-                }
-                const int count = kMcCases.triangleCount[cubeCase];
-                if (count == 0) continue;
-                std::array<Key, 12> keys;
-                const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
-                for (int e = 0; e < 12; ++e) {
-                    if (!((crossing >> e) & 1)) continue;
-                    const McEdge& edge = kMcEdges[e];
-                    const Coord a = base.offsetBy(edge.dx, edge.dy, edge.dz);
-                    Coord b = a;
-                    b[edge.axis] += 1;
-                    keys[e] = rc.crossing(a, b, patch);
-                }
-                const auto& edges = kMcCases.triangleEdges[cubeCase];
-                for (int t = 0; t < count; ++t)
-                    patch.triangles.push_back({keys[edges[3 * t]], keys[edges[3 * t + 1]], keys[edges[3 * t + 2]]});
-            }
-}
-
 inline Coord times(const Coord& c, int s) { return Coord(c[0] * s, c[1] * s, c[2] * s); }
 /// (to - from) / m: a unit step along a cell edge whose ends are in sub-point units.
 inline Coord unitStep(const Coord& from, const Coord& to, int m)
@@ -327,38 +289,173 @@ inline Coord unitStep(const Coord& from, const Coord& to, int m)
 /// Local corner c of a cell, in sub-point units (0 or m per axis).
 inline Coord cornerLocal(int c, int m)
 {
-    const auto& o = kMcCornerOffset[c];
+    const auto& o = kMcCornerOffset[std::size_t(c)];
     return Coord(o.x * m, o.y * m, o.z * m);
 }
 
-/// The surface of a transition cell: segments on its six faces (walked counter-clockwise from
-/// outside, each entering crossing joined to the next leaving one, McTables.h's rule), chained
-/// into loops, each fanned to its centre.
-void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined, Patch& patch)
+/// Tricubic values at the sub-points (local coordinates 0..m) of one cell: all of them for a
+/// refined cell, those on the given faces and edges (and the corners) for a transition cell.
+/// Either way a value is the one refineCell gives, bit for bit (Tricubic.h).
+class CellValues {
+public:
+    CellValues(int m, double k, const Packer& packer) : mM(m), mN(m + 1), mK(k), mPacker(packer)
+    {
+        for (int s = 0; s <= m; ++s) mWeights.push_back(cubicWeights(s, m));
+    }
+
+    void refineAll(const Coord& cell, const float* stencil)
+    {
+        mCell = cell;
+        refineCell(stencil, mM, mValues, mWorkspace);
+    }
+
+    void refineParts(const Coord& cell, const float* stencil, const bool (&faces)[6], const bool (&edges)[12])
+    {
+        mCell = cell;
+        mValues.resize(std::size_t(mN) * mN * mN);
+        for (int c = 0; c < 8; ++c) evaluate(stencil, cornerLocal(c, mM));
+        for (int f = 0; f < 6; ++f) {
+            if (!faces[f]) continue;
+            const int axis = f / 2, u = (axis + 1) % 3, v = (axis + 2) % 3;
+            Coord p;
+            p[axis] = (f % 2) * mM;
+            for (p[u] = 0; p[u] <= mM; ++p[u])
+                for (p[v] = 0; p[v] <= mM; ++p[v]) evaluate(stencil, p);
+        }
+        for (int e = 0; e < 12; ++e) {
+            if (!edges[e]) continue;
+            const McEdge& edge = kMcEdges[std::size_t(e)];
+            Coord p(edge.dx * mM, edge.dy * mM, edge.dz * mM);
+            for (p[edge.axis] = 0; p[edge.axis] <= mM; ++p[edge.axis]) evaluate(stencil, p);
+        }
+    }
+
+    const Coord& cell() const { return mCell; }
+    int m() const { return mM; }
+    double value(const Coord& local) const { return mValues[subIndex(local[0], local[1], local[2], mN)]; }
+    bool inside(const Coord& local) const { return value(local) >= mK; }
+    Coord fine(const Coord& local) const { return times(mCell, mM) + local; }
+
+    /// The subcell edge between neighbouring sub-points @a a and @a b (local), keyed by its
+    /// lower fine point and axis.
+    Ref edgeKey(const Coord& a, const Coord& b) const
+    {
+        const Coord& lo = a < b ? a : b;
+        const Coord& hi = a < b ? b : a;
+        int axis = 0;
+        while (hi[axis] == lo[axis]) ++axis;
+        return mPacker.fine(fine(lo), axis);
+    }
+
+    /// Every crossing subcell edge of the cell with its linear crossing (SPEC §2 on the subcell
+    /// edge, from its lower point).
+    void writeCrossings(std::vector<FineCrossing>& out) const
+    {
+        for (int axis = 0; axis < 3; ++axis) {
+            Coord hiBound(mM, mM, mM);
+            hiBound[axis] = mM - 1;
+            Coord p;
+            for (p[0] = 0; p[0] <= hiBound[0]; ++p[0])
+                for (p[1] = 0; p[1] <= hiBound[1]; ++p[1])
+                    for (p[2] = 0; p[2] <= hiBound[2]; ++p[2]) {
+                        Coord q = p;
+                        q[axis] += 1;
+                        const double f0 = value(p), f1 = value(q);
+                        if ((f0 >= mK) == (f1 >= mK)) continue;
+                        const double t = std::clamp((mK - f0) / (f1 - f0), 0.0, 1.0);
+                        out.push_back(FineCrossing{mPacker.fine(fine(p), axis), float(t)});
+                    }
+        }
+    }
+
+private:
+    void evaluate(const float* stencil, const Coord& p)
+    {
+        mValues[subIndex(p[0], p[1], p[2], mN)] = tricubic(stencil, mWeights[std::size_t(p[0])],
+            mWeights[std::size_t(p[1])], mWeights[std::size_t(p[2])]);
+    }
+
+    int mM, mN;
+    double mK;
+    const Packer& mPacker;
+    Coord mCell;
+    std::vector<CubicWeights> mWeights;
+    std::vector<double> mValues;
+    TricubicWorkspace mWorkspace;
+};
+
+/// Marching cubes on the m^3 subcells of a refined cell (McTables.h, inside is >= k).
+void meshRefinedCell(const CellValues& cv, Patch& patch)
 {
-    using mc_tables_internal::edgeBetween;
-    using mc_tables_internal::kFaceCorners;
-    const int m = rc.m;
-    const Coord& u = rc.cell;
-    bool edgeRefined[12];
+    const int m = cv.m();
+    cv.writeCrossings(patch.crossings);
+    for (int p = 0; p < m; ++p)
+        for (int q = 0; q < m; ++q)
+            for (int r = 0; r < m; ++r) {
+                const Coord base(p, q, r);
+                int cubeCase = 0;
+                for (int c = 0; c < 8; ++c) {
+                    const auto& o = kMcCornerOffset[std::size_t(c)];
+                    cubeCase |= int(cv.inside(base.offsetBy(o.x, o.y, o.z))) << c;
+                }
+                const int count = kMcCases.triangleCount[std::size_t(cubeCase)];
+                if (count == 0) continue;
+                std::array<Ref, 12> keys{};
+                const std::uint16_t crossing = kMcCases.crossingEdges[std::size_t(cubeCase)];
+                for (int e = 0; e < 12; ++e) {
+                    if (!((crossing >> e) & 1)) continue;
+                    const McEdge& edge = kMcEdges[std::size_t(e)];
+                    const Coord a = base.offsetBy(edge.dx, edge.dy, edge.dz);
+                    Coord b = a;
+                    b[edge.axis] += 1;
+                    keys[std::size_t(e)] = cv.edgeKey(a, b);
+                }
+                const auto& edges = kMcCases.triangleEdges[std::size_t(cubeCase)];
+                for (int t = 0; t < count; ++t)
+                    patch.triangles.push_back({keys[std::size_t(edges[3 * t])],
+                        keys[std::size_t(edges[3 * t + 1])], keys[std::size_t(edges[3 * t + 2])]});
+            }
+}
+
+/// Which faces (-x, +x, -y, +y, -z, +z) and edges of the unrefined cell @a u a refined cell
+/// shares.
+void refinedParts(const Coord& u, CellSetAccessor& refined, bool (&faces)[6], bool (&edges)[12])
+{
+    for (int f = 0; f < 6; ++f) {
+        Coord across = u;
+        across[f / 2] += (f % 2) ? 1 : -1;
+        faces[f] = refined.isValueOn(across);
+    }
     for (int e = 0; e < 12; ++e) {
-        const McEdge& edge = kMcEdges[e];
+        const McEdge& edge = kMcEdges[std::size_t(e)];
         const Coord v = u.offsetBy(edge.dx, edge.dy, edge.dz);
         const int a1 = (edge.axis + 1) % 3, a2 = (edge.axis + 2) % 3;
-        edgeRefined[e] = false;
+        edges[e] = false;
         for (int d1 = 0; d1 < 2; ++d1)
             for (int d2 = 0; d2 < 2; ++d2) {
                 Coord c = v;
                 c[a1] -= d1;
                 c[a2] -= d2;
-                if (c != u && contains(refined, c)) edgeRefined[e] = true;
+                if (c != u && refined.isValueOn(c)) edges[e] = true;
             }
     }
+}
+
+/// The surface of a transition cell: segments on its six faces (walked counter-clockwise from
+/// outside, each entering crossing joined to the next leaving one, McTables.h's rule), chained
+/// into loops, each fanned to its centre.
+void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], const bool (&edgeRefined)[12],
+    const Packer& packer, Patch& patch)
+{
+    using mc_tables_internal::edgeBetween;
+    using mc_tables_internal::kFaceCorners;
+    const int m = cv.m();
+    const Coord& u = cv.cell();
     struct Crossing {
-        Key key;
+        Ref key;
         bool enters;
     };
-    std::vector<std::pair<Key, Key>> segments;
+    std::vector<std::pair<Ref, Ref>> segments;
     auto pairUp = [&segments](const std::vector<Crossing>& walk) {
         for (std::size_t i = 0; i < walk.size(); ++i) {
             if (!walk[i].enters) continue;
@@ -374,9 +471,7 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
     std::vector<Crossing> walk;
     for (int f = 0; f < 6; ++f) {
         const auto& loop = kFaceCorners[std::size_t(f)];
-        Coord across = u;
-        across[f / 2] += (f % 2) ? 1 : -1;
-        if (contains(refined, across)) {
+        if (faceRefined[f]) {
             // A face shared with a refined cell: its m x m subfaces, walked the same way.
             const Coord c0 = cornerLocal(loop[0], m);
             const Coord ds = unitStep(c0, cornerLocal(loop[1], m), m), dt = unitStep(c0, cornerLocal(loop[3], m), m);
@@ -388,7 +483,7 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
                     for (int i = 0; i < 4; ++i) {
                         const Coord& a = corner[i];
                         const Coord& b = corner[(i + 1) % 4];
-                        if (rc.inside(a) != rc.inside(b)) walk.push_back({rc.crossing(a, b, patch), rc.inside(b)});
+                        if (cv.inside(a) != cv.inside(b)) walk.push_back({cv.edgeKey(a, b), cv.inside(b)});
                     }
                     pairUp(walk);
                 }
@@ -403,12 +498,11 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
                 const Coord step = unitStep(a, b, m);
                 for (int s = 0; s < m; ++s) {
                     const Coord p = a + times(step, s), q = a + times(step, s + 1);
-                    if (rc.inside(p) != rc.inside(q)) walk.push_back({rc.crossing(p, q, patch), rc.inside(q)});
+                    if (cv.inside(p) != cv.inside(q)) walk.push_back({cv.edgeKey(p, q), cv.inside(q)});
                 }
-            } else if (rc.inside(a) != rc.inside(b)) { // the standard vertex of this grid edge
+            } else if (cv.inside(a) != cv.inside(b)) { // the standard vertex of this grid edge
                 const McEdge& edge = kMcEdges[std::size_t(e)];
-                walk.push_back({Key{u.offsetBy(edge.dx, edge.dy, edge.dz), std::uint16_t(kCoarse + edge.axis)},
-                    rc.inside(b)});
+                walk.push_back({packer.coarse(u.offsetBy(edge.dx, edge.dy, edge.dz), edge.axis), cv.inside(b)});
             }
         }
         pairUp(walk);
@@ -418,7 +512,6 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
     // (the surfaces of the cells beyond those faces meet along that chord) and is skipped.
     std::vector<bool> used(segments.size(), false);
     std::vector<std::size_t> loop;
-    std::uint16_t loopIndex = 0;
     for (std::size_t first = 0; first < segments.size(); ++first) {
         if (used[first]) continue;
         loop.clear();
@@ -432,13 +525,13 @@ void meshTransitionCell(const RefinedCell& rc, const std::vector<Coord>& refined
                 }
         }
         if (loop.size() < 3) continue;
-        const Key centre{u, std::uint16_t(kCentre + loopIndex++)};
-        patch.centres.push_back(centre);
+        const Ref centre = kCentreRef | Ref(patch.memberEnds.size());
         for (std::size_t s : loop) {
             patch.members.push_back(segments[s].first);
             patch.triangles.push_back({centre, segments[s].first, segments[s].second});
         }
-        patch.memberOffsets.push_back(std::uint32_t(patch.members.size()));
+        patch.memberEnds.push_back(std::uint32_t(patch.members.size()));
+        patch.centreCells.push_back(u);
     }
 }
 
@@ -494,21 +587,27 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     const openvdb::FloatTree& tree = grid.tree();
     tbb::enumerable_thread_specific<Accessor> accessors([&tree] { return Accessor(tree); });
 
-    // Detect (SPEC §4): per block, the slope rule on each meshed cell, then the tricubic test.
+    // Detect (SPEC §4): per block, the slope rule on each meshed cell, then whether the tricubic
+    // crosses k there (and the filter).
     const std::vector<Coord> origins = blockOrigins(tree);
     struct BlockResult {
         std::size_t total = 0, flagged = 0;
         std::vector<Coord> refined;
     };
     std::vector<BlockResult> blockResults(origins.size());
-    tbb::enumerable_thread_specific<Window> windows;
+    struct DetectScratch {
+        Window window;
+        TricubicWorkspace workspace;
+        std::vector<double> sub;
+    };
+    tbb::enumerable_thread_specific<DetectScratch> detectScratch;
     forEach(origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
         const Coord& origin = origins[b];
-        Window& w = windows.local();
+        DetectScratch& scratch = detectScratch.local();
+        Window& w = scratch.window;
         w.gather(accessors.local(), origin);
         BlockResult& out = blockResults[b];
         float stencil[64];
-        std::vector<double> sub;
         for (int x = 0; x < kBlock; ++x)
             for (int y = 0; y < kBlock; ++y)
                 for (int z = 0; z < kBlock; ++z) {
@@ -522,6 +621,27 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                         continue;
                     if (!cellTurns(w, x, y, z)) continue;
                     ++out.flagged;
+                    float lo = std::numeric_limits<float>::max(), hi = -lo;
+                    for (int a = 0; a < 4; ++a)
+                        for (int c = 0; c < 4; ++c)
+                            for (int d = 0; d < 4; ++d) {
+                                const float v = w.value(x + a - 1, y + c - 1, z + d - 1);
+                                stencil[16 * a + 4 * c + d] = v;
+                                lo = std::min(lo, v);
+                                hi = std::max(hi, v);
+                            }
+                    // The tricubic stays within 1.25^3 (its Lebesgue constant) times the stencil's
+                    // half range of the stencil's mid range: beyond that it cannot reach k.
+                    const double mid = 0.5 * (double(lo) + double(hi)), reach = 1.953125 * 0.5 * (double(hi) - double(lo));
+                    if (std::abs(double(k) - mid) > reach) continue;
+                    bool straddles = false;
+                    for (const auto& o : kMcCornerOffset)
+                        straddles |= (w.value(x + o.x, y + o.y, z + o.z) >= k) != (w.value(x, y, z) >= k);
+                    if (hidden.filter || !straddles) {
+                        refineCell(stencil, m, scratch.sub, scratch.workspace);
+                        if (!crosses(scratch.sub, k)) continue;
+                        if (hidden.filter && !reveals(scratch.sub, m, k)) continue;
+                    }
                     // Transition cells must be meshed too, so the refinement stops one cell short of
                     // the border of the active region (where a sparse surface ends anyway).
                     bool neighboursMeshed = true;
@@ -530,117 +650,133 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                             for (int dz = -1; dz <= 1 && neighboursMeshed; ++dz)
                                 if (std::abs(dx) + std::abs(dy) + std::abs(dz) <= 2)
                                     neighboursMeshed = w.meshed(x + dx, y + dy, z + dz);
-                    if (!neighboursMeshed) continue;
-                    for (int a = 0; a < 4; ++a)
-                        for (int c = 0; c < 4; ++c)
-                            for (int d = 0; d < 4; ++d)
-                                stencil[16 * a + 4 * c + d] = w.value(x + a - 1, y + c - 1, z + d - 1);
-                    refineCell(stencil, m, sub);
-                    if (!crosses(sub, k)) continue;
-                    if (hidden.filter && !reveals(sub, m, k)) continue;
-                    out.refined.push_back(cell);
+                    if (neighboursMeshed) out.refined.push_back(cell);
                 }
     });
     HiddenFeatureStats stats;
     std::vector<Coord> refined;
+    CellSet refinedSet(false);
     for (const BlockResult& r : blockResults) {
         stats.cellsTotal += r.total;
         stats.cellsFlagged += r.flagged;
         refined.insert(refined.end(), r.refined.begin(), r.refined.end());
+        for (const Coord& c : r.refined) refinedSet.setValueOn(c, true);
     }
-    std::sort(refined.begin(), refined.end());
+    blockResults.clear();
     stats.cellsRefined = refined.size();
 
-    // Transition cells: unrefined cells sharing a face or an edge with a refined one.
+    // Transition cells: unrefined cells sharing a face or an edge with a refined one, in tree order.
+    CellSet replacedSet = refinedSet;
+    openvdb::tools::dilateActiveValues(replacedSet, 1, openvdb::tools::NN_FACE_EDGE, openvdb::tools::IGNORE_TILES,
+        threaded);
     std::vector<Coord> transition;
-    for (const Coord& c : refined)
-        for (int dx = -1; dx <= 1; ++dx)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dz = -1; dz <= 1; ++dz) {
-                    const int n = std::abs(dx) + std::abs(dy) + std::abs(dz);
-                    if (n >= 1 && n <= 2) transition.push_back(c.offsetBy(dx, dy, dz));
-                }
-    std::sort(transition.begin(), transition.end());
-    transition.erase(std::unique(transition.begin(), transition.end()), transition.end());
-    transition.erase(std::remove_if(transition.begin(), transition.end(),
-                         [&](const Coord& c) { return contains(refined, c); }),
-        transition.end());
+    {
+        CellSetAccessor isRefined(refinedSet);
+        for (auto v = replacedSet.cbeginValueOn(); v; ++v)
+            if (!isRefined.isValueOn(v.getCoord())) transition.push_back(v.getCoord());
+    }
     stats.cellsTransition = transition.size();
     if (statsOut) *statsOut = stats;
     throwIfInterrupted(interrupter);
 
     Mesh mesh;
-    mesh.indexToWorld = standard.indexToWorld;
     if (refined.empty()) { // nothing refined: the standard mesh, all of it standard
         mesh = standard;
         mesh.vertexAttributes.add<std::uint8_t>("hidden", mesh.vertexCount());
         mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
         return mesh;
     }
+    CoordBBox region;
+    refinedSet.evalActiveVoxelBoundingBox(region);
+    Packer packer;
+    packer.voxelOrigin = region.min().offsetBy(-1);
+    packer.fineOrigin = times(packer.voxelOrigin, m);
+    for (int i = 0; i < 3; ++i)
+        if (std::int64_t(region.dim()[i] + 3) * m >= (std::int64_t(1) << kCoordBits))
+            OPENVDB_THROW(openvdb::ValueError, "hidden features: the refined cells span more than 2^20 / "
+                                                   + std::to_string(m) + " voxels; use fewer subdivisions");
 
     // Refine and transition, in chunks of cells; chunk order is cell order.
     constexpr std::size_t kChunk = 32;
     const std::size_t refinedChunks = (refined.size() + kChunk - 1) / kChunk;
     const std::size_t transitionChunks = (transition.size() + kChunk - 1) / kChunk;
     std::vector<Patch> patches(refinedChunks + transitionChunks);
+    struct CellScratch {
+        CellValues values;
+        CellSetAccessor refined;
+    };
+    tbb::enumerable_thread_specific<CellScratch> cellScratch(
+        [&] { return CellScratch{CellValues(m, double(k), packer), CellSetAccessor(refinedSet)}; });
     forEach(patches.size(), 1, threaded, interrupter, [&](std::size_t chunk) {
         const bool isRefined = chunk < refinedChunks;
         const std::vector<Coord>& cells = isRefined ? refined : transition;
         const std::size_t first = (isRefined ? chunk : chunk - refinedChunks) * kChunk;
         const std::size_t last = std::min(cells.size(), first + kChunk);
+        CellScratch& scratch = cellScratch.local();
         float stencil[64];
-        RefinedCell rc{Coord(), m, double(k), {}};
+        bool faces[6], edges[12];
         for (std::size_t i = first; i < last; ++i) {
-            rc.cell = cells[i];
-            gatherStencil(accessors.local(), rc.cell, stencil);
-            refineCell(stencil, m, rc.sub);
-            if (isRefined) meshRefinedCell(rc, patches[chunk]);
-            else meshTransitionCell(rc, refined, patches[chunk]);
+            gatherStencil(accessors.local(), cells[i], stencil);
+            if (isRefined) {
+                scratch.values.refineAll(cells[i], stencil);
+                meshRefinedCell(scratch.values, patches[chunk]);
+            } else {
+                refinedParts(cells[i], scratch.refined, faces, edges);
+                scratch.values.refineParts(cells[i], stencil, faces, edges);
+                meshTransitionCell(scratch.values, faces, edges, packer, patches[chunk]);
+            }
         }
     });
 
-    // New vertices: subcell-edge crossings, sorted by key and shared.
-    std::vector<FineVertex> fine;
-    for (const Patch& p : patches) fine.insert(fine.end(), p.vertices.begin(), p.vertices.end());
-    auto byKey = [](const FineVertex& a, const FineVertex& b) { return a.key < b.key; };
+    // New vertices: subcell-edge crossings, sorted by key and shared (refined neighbours write
+    // the same crossing bit for bit).
+    std::vector<FineCrossing> fine;
+    for (Patch& p : patches) {
+        fine.insert(fine.end(), p.crossings.begin(), p.crossings.end());
+        std::vector<FineCrossing>().swap(p.crossings);
+    }
+    auto byKey = [](const FineCrossing& a, const FineCrossing& b) { return a.key < b.key; };
     if (threaded) tbb::parallel_sort(fine.begin(), fine.end(), byKey);
     else std::sort(fine.begin(), fine.end(), byKey);
-    fine.erase(std::unique(fine.begin(), fine.end(), [](const FineVertex& a, const FineVertex& b) {
+    fine.erase(std::unique(fine.begin(), fine.end(), [](const FineCrossing& a, const FineCrossing& b) {
         return a.key == b.key;
     }), fine.end());
+    std::vector<Ref> fineKeys(fine.size());
+    for (std::size_t i = 0; i < fine.size(); ++i) fineKeys[i] = fine[i].key;
 
     // Standard vertices used by transition loops, found by their grid edge.
-    std::vector<Key> coarse;
+    std::vector<Ref> coarse;
     for (std::size_t c = refinedChunks; c < patches.size(); ++c)
-        for (const Key& key : patches[c].members)
-            if (key.kind >= kCoarse && key.kind < kCentre) coarse.push_back(key);
+        for (Ref r : patches[c].members)
+            if ((r & kKindMask) == kCoarseRef) coarse.push_back(r);
     std::sort(coarse.begin(), coarse.end());
     coarse.erase(std::unique(coarse.begin(), coarse.end()), coarse.end());
     const std::size_t standardVertices = standard.vertexCount();
-    std::vector<std::uint32_t> coarseVertex(coarse.size(), std::numeric_limits<std::uint32_t>::max());
+    constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+    std::vector<std::uint32_t> coarseVertex(coarse.size(), kNone);
     forEach(standardVertices, 4096, threaded, nullptr, [&](std::size_t v) {
-        const Key key{Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]), std::uint16_t(kCoarse + (*edgeAxis)[v])};
+        const Coord voxel((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
+        if (!packer.coarseFits(voxel)) return;
+        const Ref key = packer.coarse(voxel, (*edgeAxis)[v]);
         const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
         if (it != coarse.end() && *it == key) coarseVertex[std::size_t(it - coarse.begin())] = std::uint32_t(v);
     });
     for (std::uint32_t v : coarseVertex)
-        if (v == std::numeric_limits<std::uint32_t>::max())
-            throw std::logic_error("hidden features: a transition cell's grid edge has no standard vertex");
+        if (v == kNone) throw std::logic_error("hidden features: a transition cell's grid edge has no standard vertex");
 
     // Standard triangles of cells outside R and T stay.
-    std::vector<Coord> replaced;
-    std::merge(refined.begin(), refined.end(), transition.begin(), transition.end(), std::back_inserter(replaced));
     std::vector<std::uint8_t> keep(standard.triangleCount(), 1);
+    tbb::enumerable_thread_specific<CellSetAccessor> replacedAccessors([&] { return CellSetAccessor(replacedSet); });
     forEach(standard.triangleCount(), 4096, threaded, interrupter, [&](std::size_t t) {
         std::array<Coord, 3> voxel;
         std::array<int, 3> axis;
         for (int i = 0; i < 3; ++i) {
             const std::size_t v = standard.triangles[t][i];
-            voxel[i] = Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
-            axis[i] = (*edgeAxis)[v];
+            voxel[std::size_t(i)] = Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
+            axis[std::size_t(i)] = (*edgeAxis)[v];
         }
         const std::optional<Coord> cell = cellOfTriangle(voxel, axis);
-        if (cell && contains(replaced, *cell)) keep[t] = 0;
+        if (cell && replacedAccessors.local().isValueOn(*cell)) keep[t] = 0;
     });
 
     // Vertex numbering: used standard vertices in their order, then fine vertices, then centres.
@@ -649,76 +785,72 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         if (keep[t])
             for (int i = 0; i < 3; ++i) remap[standard.triangles[t][i]] = 1;
     for (std::uint32_t v : coarseVertex) remap[v] = 1;
-    std::uint32_t next = 0;
     std::vector<std::uint32_t> kept;
     for (std::size_t v = 0; v < standardVertices; ++v) {
-        if (remap[v]) {
-            remap[v] = next++;
-            kept.push_back(std::uint32_t(v));
-        } else {
-            remap[v] = std::numeric_limits<std::uint32_t>::max();
-        }
+        remap[v] = remap[v] ? std::uint32_t(kept.size()) : kNone;
+        if (remap[v] != kNone) kept.push_back(std::uint32_t(v));
+    }
+    std::vector<std::size_t> centreOffset(patches.size() + 1, 0), triangleOffset(patches.size() + 1, 0);
+    std::size_t keptTriangles = 0;
+    for (std::uint8_t f : keep) keptTriangles += f;
+    triangleOffset[0] = keptTriangles;
+    for (std::size_t c = 0; c < patches.size(); ++c) {
+        centreOffset[c + 1] = centreOffset[c] + patches[c].memberEnds.size();
+        triangleOffset[c + 1] = triangleOffset[c] + patches[c].triangles.size();
     }
     const std::size_t fineBase = kept.size(), centreBase = fineBase + fine.size();
-    std::vector<std::pair<Key, std::size_t>> centres; // key -> (chunk, loop) in chunk order
-    for (std::size_t c = refinedChunks; c < patches.size(); ++c)
-        for (std::size_t l = 0; l < patches[c].centres.size(); ++l) centres.emplace_back(patches[c].centres[l], 0);
-    std::sort(centres.begin(), centres.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-    const std::size_t vertexCount = centreBase + centres.size();
+    const std::size_t vertexCount = centreBase + centreOffset.back();
     if (vertexCount > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
-
-    auto indexOf = [&](const Key& key) -> std::uint32_t {
-        if (key.kind < kCoarse) {
-            const auto it = std::lower_bound(fine.begin(), fine.end(), FineVertex{key, Vec3d()},
-                [](const FineVertex& a, const FineVertex& b) { return a.key < b.key; });
-            return std::uint32_t(fineBase + std::size_t(it - fine.begin()));
+    auto indexOf = [&](Ref r, std::size_t chunk) -> std::uint32_t {
+        switch (r & kKindMask) {
+        case kFineRef:
+            return std::uint32_t(fineBase + std::size_t(std::lower_bound(fineKeys.begin(), fineKeys.end(), r) - fineKeys.begin()));
+        case kCoarseRef:
+            return remap[coarseVertex[std::size_t(std::lower_bound(coarse.begin(), coarse.end(), r) - coarse.begin())]];
+        default:
+            return std::uint32_t(centreBase + centreOffset[chunk] + std::size_t(r & ~kKindMask));
         }
-        if (key.kind < kCentre) {
-            const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
-            return remap[coarseVertex[std::size_t(it - coarse.begin())]];
-        }
-        const auto it = std::lower_bound(centres.begin(), centres.end(), key,
-            [](const auto& a, const Key& b) { return a.first < b; });
-        return std::uint32_t(centreBase + std::size_t(it - centres.begin()));
     };
 
-    // Positions.
+    // Positions: standard, then fine (index space (P + t e_axis) / m), then fan centres.
+    mesh.indexToWorld = standard.indexToWorld;
     mesh.positions.resize(vertexCount);
     for (std::size_t i = 0; i < kept.size(); ++i) mesh.positions[i] = standard.positions[kept[i]];
     const openvdb::math::Transform& xform = grid.transform();
-    forEach(fine.size(), 1024, threaded, nullptr, [&](std::size_t i) {
-        mesh.positions[fineBase + i] = openvdb::Vec3s(xform.indexToWorld(fine[i].index));
+    forEach(fine.size(), 4096, threaded, nullptr, [&](std::size_t i) {
+        const Coord p = packer.finePoint(fine[i].key);
+        Vec3d index(p[0], p[1], p[2]);
+        index[Packer::axisOf(fine[i].key)] += double(fine[i].t);
+        mesh.positions[fineBase + i] = openvdb::Vec3s(xform.indexToWorld(index / double(m)));
     });
-    for (std::size_t c = refinedChunks; c < patches.size(); ++c) {
-        const Patch& p = patches[c];
-        for (std::size_t l = 0; l < p.centres.size(); ++l) {
-            const std::uint32_t begin = l == 0 ? 0 : p.memberOffsets[l - 1], end = p.memberOffsets[l];
-            Vec3d sum(0.0);
-            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j])]);
-            mesh.positions[indexOf(p.centres[l])] = openvdb::Vec3s(sum / double(end - begin));
-        }
-    }
-
     // Triangles: kept standard ones, then refined cells', then transition cells'.
     const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
     const bool flip = settings.orientation == Orientation::TowardsHigher ||
                       (settings.orientation == Orientation::Auto && levelSet);
-    std::size_t keptTriangles = 0;
-    for (std::uint8_t f : keep) keptTriangles += f;
-    mesh.triangles.reserve(keptTriangles);
+    mesh.triangles.resize(triangleOffset.back());
+    std::size_t n = 0;
     for (std::size_t t = 0; t < keep.size(); ++t) {
         if (!keep[t]) continue;
         const openvdb::Vec3I& tri = standard.triangles[t];
-        mesh.triangles.emplace_back(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
+        mesh.triangles[n++] = openvdb::Vec3I(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
     }
-    for (const Patch& p : patches)
+    forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
+        const Patch& p = patches[c];
+        openvdb::Vec3I* out = mesh.triangles.data() + triangleOffset[c];
         for (const auto& tri : p.triangles) {
-            const std::uint32_t a = indexOf(tri[0]), b = indexOf(tri[1]), c = indexOf(tri[2]);
-            mesh.triangles.push_back(flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c));
+            const std::uint32_t a = indexOf(tri[0], c), b = indexOf(tri[1], c), d = indexOf(tri[2], c);
+            *out++ = flip ? openvdb::Vec3I(a, d, b) : openvdb::Vec3I(a, b, d);
         }
+        for (std::size_t l = 0; l < p.memberEnds.size(); ++l) {
+            const std::uint32_t begin = l == 0 ? 0 : p.memberEnds[l - 1], end = p.memberEnds[l];
+            Vec3d sum(0.0);
+            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j], c)]);
+            mesh.positions[centreBase + centreOffset[c] + l] = openvdb::Vec3s(sum / double(end - begin));
+        }
+    });
 
-    // Attributes (SPEC §6): standard columns copied; refined vertices as documented in the header.
+    // Attributes (SPEC §6): standard columns copied; refined vertices as the header documents.
     for (const Attribute& column : standard.vertexAttributes.columns()) {
         std::visit([&](const auto& src) {
             using T = typename std::decay_t<decltype(src)>::value_type;
@@ -735,19 +867,21 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         auto& ea = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
         auto floorDiv = [m](int v) { return v >= 0 ? v / m : -((-v + m - 1) / m); };
         for (std::size_t i = 0; i < fine.size(); ++i) {
-            const Coord& p = fine[i].key.p;
+            const Coord p = packer.finePoint(fine[i].key);
             (*ei)[fineBase + i] = floorDiv(p[0]);
             ej[fineBase + i] = floorDiv(p[1]);
             ek[fineBase + i] = floorDiv(p[2]);
-            ea[fineBase + i] = std::uint8_t(fine[i].key.kind);
+            ea[fineBase + i] = std::uint8_t(Packer::axisOf(fine[i].key));
         }
-        for (std::size_t i = 0; i < centres.size(); ++i) {
-            const Coord& c = centres[i].first.p;
-            (*ei)[centreBase + i] = c[0];
-            ej[centreBase + i] = c[1];
-            ek[centreBase + i] = c[2];
-            ea[centreBase + i] = 255;
-        }
+        for (std::size_t c = refinedChunks; c < patches.size(); ++c)
+            for (std::size_t l = 0; l < patches[c].memberEnds.size(); ++l) {
+                const std::size_t v = centreBase + centreOffset[c] + l;
+                const Coord& cell = patches[c].centreCells[l];
+                (*ei)[v] = cell[0];
+                ej[v] = cell[1];
+                ek[v] = cell[2];
+                ea[v] = 255;
+            }
     }
     auto& hiddenVertex = mesh.vertexAttributes.add<std::uint8_t>("hidden", vertexCount);
     std::fill(hiddenVertex.begin() + std::ptrdiff_t(fineBase), hiddenVertex.end(), std::uint8_t(1));
@@ -755,9 +889,9 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         std::visit([&](const auto& src) {
             using T = typename std::decay_t<decltype(src)>::value_type;
             std::vector<T>& dst = mesh.faceAttributes.add<T>(column.name, mesh.triangleCount());
-            std::size_t n = 0;
+            std::size_t f = 0;
             for (std::size_t t = 0; t < keep.size(); ++t)
-                if (keep[t]) dst[n++] = src[t];
+                if (keep[t]) dst[f++] = src[t];
         }, column.data);
     }
     auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());

@@ -69,28 +69,49 @@ double tricubic(const T* stencil, const CubicWeights& wx, const CubicWeights& wy
     return contract(wx, alongY, 1);
 }
 
+/// Scratch space of refineCell, reused between calls with the same m (no allocation per cell).
+struct TricubicWorkspace {
+    int m = 0;
+    std::vector<CubicWeights> weights;
+    std::vector<double> alongZ, alongY;
+};
+
 /// Values of the tricubic at the (m+1)^3 points (p, q, r) / m of the cell, written to
 /// out[((p * (m+1)) + q) * (m+1) + r]. Separable: the same sums as tricubic(), reused.
 template <typename T>
-void refineCell(const T* stencil, int m, std::vector<double>& out)
+void refineCell(const T* stencil, int m, std::vector<double>& out, TricubicWorkspace& ws)
 {
     using tricubic_internal::contract;
     const int n = m + 1;
-    std::vector<CubicWeights> w(static_cast<std::size_t>(n));
-    for (int s = 0; s < n; ++s) w[std::size_t(s)] = cubicWeights(s, m);
-    // alongZ[(a*4 + b)*n + r], then alongY[(a*n + q)*n + r]; unused entries stay unread.
-    std::vector<double> alongZ(std::size_t(16 * n)), alongY(std::size_t(4 * n * n));
+    if (ws.m != m) {
+        ws.m = m;
+        ws.weights.resize(std::size_t(n));
+        for (int s = 0; s < n; ++s) ws.weights[std::size_t(s)] = cubicWeights(s, m);
+        // alongZ[(a*4 + b)*n + r], then alongY[(a*n + q)*n + r].
+        ws.alongZ.resize(std::size_t(16 * n));
+        ws.alongY.resize(std::size_t(4 * n * n));
+    }
+    const std::vector<CubicWeights>& w = ws.weights;
+    double* alongZ = ws.alongZ.data();
+    double* alongY = ws.alongY.data();
     for (int ab = 0; ab < 16; ++ab)
-        for (int r = 0; r < n; ++r) alongZ[std::size_t(ab * n + r)] = contract(w[r], stencil + 4 * ab, 1);
+        for (int r = 0; r < n; ++r) alongZ[ab * n + r] = contract(w[std::size_t(r)], stencil + 4 * ab, 1);
     for (int a = 0; a < 4; ++a)
         for (int q = 0; q < n; ++q)
             for (int r = 0; r < n; ++r)
-                alongY[std::size_t((a * n + q) * n + r)] = contract(w[q], &alongZ[std::size_t(4 * a * n + r)], n);
+                alongY[(a * n + q) * n + r] = contract(w[std::size_t(q)], alongZ + 4 * a * n + r, n);
     out.resize(std::size_t(n) * n * n);
     for (int p = 0; p < n; ++p)
         for (int q = 0; q < n; ++q)
             for (int r = 0; r < n; ++r)
-                out[std::size_t((p * n + q) * n + r)] = contract(w[p], &alongY[std::size_t(q * n + r)], n * n);
+                out[std::size_t((p * n + q) * n + r)] = contract(w[std::size_t(p)], alongY + q * n + r, n * n);
+}
+
+template <typename T>
+void refineCell(const T* stencil, int m, std::vector<double>& out)
+{
+    TricubicWorkspace ws;
+    refineCell(stencil, m, out, ws);
 }
 
 } // namespace isouq
