@@ -71,8 +71,6 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     clock.lap(timings, "mesh");
 
     if (job.truth && job.uncertainty && volume.truth) {
-        // addTruthColumns holds pointers to columns while adding some: make room first.
-        mesh.vertexAttributes.columns().reserve(mesh.vertexAttributes.columns().size() + 16);
         addTruthColumns(mesh, *volume.truth, settings.isovalue);
         clock.lap(timings, "truth");
     }

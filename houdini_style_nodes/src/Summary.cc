@@ -12,7 +12,7 @@ namespace {
 
 /// Per-vertex measures whose statistics the summary reports (SPEC §6, §8).
 const char* const kSummaryMeasures[] = {"err_est", "err_bound", "err_best", "d_lc", "d_lw", "d_cw",
-    "max_var", "err_true_linear", "err_true_cubic", "err_true_weno", "err_true_weno-paper",
+    "max_var", "err_true_linear", "err_true_cubic", "err_true_weno", "err_true_weno_paper",
     "dist_true", "compare_dist"};
 
 } // namespace

@@ -189,9 +189,6 @@ void cookTruth(CookContext& ctx)
     const LoadedVolume& volume = inputVolume(ctx);
     if (!volume.truth) throw std::invalid_argument("input 'volume' has no exact field (only field: and formula: inputs do)");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
-    // addTruthColumns keeps pointers to the edge columns while it adds columns: make room first
-    // so that adding moves nothing (reported to the validation engineer).
-    out->mesh.vertexAttributes.columns().reserve(out->mesh.vertexAttributes.columns().size() + 16);
     TruthSettings settings;
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
     const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);

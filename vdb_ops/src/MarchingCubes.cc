@@ -463,11 +463,6 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
         vertexOffsets[b + 1] = vertexOffsets[b] + records[b].vertexCount;
         triangleOffsets[b + 1] = triangleOffsets[b] + records[b].triangleCount;
     }
-    if (std::getenv("ISOUQ_DEBUG_BLOCKS")) {
-        std::size_t nonEmpty = 0;
-        for (const auto& r : records) nonEmpty += (r.vertexCount + r.triangleCount) > 0;
-        std::fprintf(stderr, "blocks %zu non-empty %zu leaves %zu\n", blockCount, nonEmpty, std::size_t(grid.tree().leafCount()));
-    }
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
 

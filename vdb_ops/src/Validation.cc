@@ -236,7 +236,7 @@ std::vector<Vec3d> crossingPositions(const Mesh& mesh, const std::string& tColum
 
 TruthReport addTruthColumns(Mesh& mesh, const AnalyticField& field, double isovalue, const TruthSettings& settings)
 {
-    const Provenance prov(mesh);
+    Provenance prov(mesh);
     const std::size_t n = mesh.positions.size();
     const std::array<double, 16>& m = mesh.indexToWorld;
     // Smallest grid spacing: the length scale for gradients and tolerances.
@@ -275,6 +275,7 @@ TruthReport addTruthColumns(Mesh& mesh, const AnalyticField& field, double isova
         methods.push_back({table.find<float>("t_" + name), table.find<float>("err_true_" + name),
             settings.perMethodDistance ? table.find<float>("dist_true_" + name) : nullptr});
     std::vector<float>& dist = *table.find<float>("dist_true");
+    prov = Provenance(mesh); // the table's columns may have moved
 
     std::atomic<std::size_t> failed{0};
     forEachIndex(n, settings.threaded, [&](std::size_t b, std::size_t e) {
