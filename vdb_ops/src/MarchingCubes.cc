@@ -38,19 +38,31 @@ inline int voxelOffset(int x, int y, int z) { return (x << 6) | (y << 3) | z; }
 
 enum RegionSide : std::uint8_t { kAllOutside = 0, kAllInside = 1, kMixed = 2 };
 
-/// What the count pass learns about one block and the fill pass needs again.
-struct BlockRecord {
-    std::array<std::uint64_t, kWords> edgeMask{}; // bit 3*voxelOffset + axis: the edge has a vertex
-    std::array<std::uint32_t, kWords> rankBase{}; // set bits in the words before
-    std::uint32_t vertexCount = 0;
-    std::uint32_t triangleCount = 0;
+/// Which edges of a block carry a vertex: bit 3 * voxelOffset + axis. Kept from the count pass
+/// to the fill pass for non-empty blocks only (most blocks of a narrow band are empty).
+struct EdgeMask {
+    std::array<std::uint64_t, kWords> bits{};
+    std::array<std::uint16_t, kWords> rankBase{}; // set bits in the words before
 
     std::uint32_t rank(int bit) const
     {
         const int word = bit >> 6;
         const std::uint64_t below = (std::uint64_t(1) << (bit & 63)) - 1;
-        return rankBase[word] + std::uint32_t(__builtin_popcountll(edgeMask[word] & below));
+        return rankBase[word] + std::uint32_t(__builtin_popcountll(bits[word] & below));
     }
+};
+
+struct BlockCounts {
+    std::uint32_t vertices = 0, triangles = 0;
+    bool empty() const { return vertices == 0 && triangles == 0; }
+};
+
+/// The edge masks of the non-empty blocks, found by block index.
+struct EdgeMasks {
+    std::vector<EdgeMask> masks;
+    std::vector<std::int32_t> slot; // per block: index into masks, or -1
+
+    const EdgeMask& of(std::int32_t block) const { return masks[std::size_t(slot[std::size_t(block)])]; }
 };
 
 /// One voxel per block (coordinates >> 3), value = block index. Small internal nodes (8^3
@@ -290,11 +302,12 @@ void forEachCandidateCell(const ScratchT& s, int from, Body&& body)
 /// Count pass for one block: which owned edges carry a vertex, and the block's triangle count.
 /// An edge carries a vertex when it crosses and at least one of its four cells is meshed.
 template <typename TreeT>
-void countBlock(const BlockScratch<TreeT>& s, BlockRecord& record)
+void countBlock(const BlockScratch<TreeT>& s, EdgeMask& mask, BlockCounts& counts)
 {
-    record = BlockRecord{};
+    mask = EdgeMask{};
+    counts = BlockCounts{};
     forEachCandidateCell(s, -1, [&](int x, int y, int z, int cubeCase) {
-        if (x >= 0 && y >= 0 && z >= 0) record.triangleCount += kMcCases.triangleCount[cubeCase];
+        if (x >= 0 && y >= 0 && z >= 0) counts.triangles += kMcCases.triangleCount[cubeCase];
         const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
         for (int e = 0; e < 12; ++e) {
             if (!((crossing >> e) & 1)) continue;
@@ -303,25 +316,25 @@ void countBlock(const BlockScratch<TreeT>& s, BlockRecord& record)
             if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
                 continue; // owned by another block
             const int bit = 3 * voxelOffset(vx, vy, vz) + edge.axis;
-            record.edgeMask[bit >> 6] |= std::uint64_t(1) << (bit & 63);
+            mask.bits[bit >> 6] |= std::uint64_t(1) << (bit & 63);
         }
     });
     std::uint32_t total = 0;
     for (int w = 0; w < kWords; ++w) {
-        record.rankBase[w] = total;
-        total += std::uint32_t(__builtin_popcountll(record.edgeMask[w]));
+        mask.rankBase[w] = std::uint16_t(total);
+        total += std::uint32_t(__builtin_popcountll(mask.bits[w]));
     }
-    record.vertexCount = total;
+    counts.vertices = total;
 }
 
 /// Writes the block's vertices at @a offset, in the order of the bits of its edge mask.
 template <typename TreeT>
-void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const BlockRecord& record,
+void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const EdgeMask& mask,
     std::size_t offset, const VertexContext& context, const VertexColumns& out)
 {
     std::size_t n = offset;
     for (int w = 0; w < kWords; ++w) {
-        for (std::uint64_t bits = record.edgeMask[w]; bits; bits &= bits - 1) {
+        for (std::uint64_t bits = mask.bits[w]; bits; bits &= bits - 1) {
             const int bit = 64 * w + __builtin_ctzll(bits);
             const int voxel = bit / 3;
             writeVertex(s, origin, voxel >> 6, (voxel >> 3) & 7, voxel & 7, bit % 3, n++, context, out);
@@ -332,27 +345,26 @@ void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const Block
 /// Global vertex index of cube edge @a e of the cell at (x, y, z) in the block, using the block
 /// and its + neighbours (neighbours[dx][dy][dz], dx, dy, dz in {0, 1}).
 inline std::uint32_t vertexOf(int x, int y, int z, int e, const std::int32_t (&neighbours)[2][2][2],
-    const std::vector<BlockRecord>& records, const std::vector<std::uint64_t>& vertexOffsets)
+    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets)
 {
     const McEdge& edge = kMcEdges[e];
     const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
     const int bx = vx >> 3, by = vy >> 3, bz = vz >> 3;
     const std::int32_t owner = neighbours[bx][by][bz];
     const int bit = 3 * voxelOffset(vx & 7, vy & 7, vz & 7) + edge.axis;
-    return std::uint32_t(vertexOffsets[owner] + records[owner].rank(bit));
+    return std::uint32_t(vertexOffsets[owner] + masks.of(owner).rank(bit));
 }
 
 template <typename TreeT>
 void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours)[2][2][2],
-    const std::vector<BlockRecord>& records, const std::vector<std::uint64_t>& vertexOffsets,
-    bool flip, openvdb::Vec3I* out)
+    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets, bool flip, openvdb::Vec3I* out)
 {
     forEachCandidateCell(s, 0, [&](int x, int y, int z, int cubeCase) {
         const auto& edges = kMcCases.triangleEdges[cubeCase];
         for (int t = 0; t < kMcCases.triangleCount[cubeCase]; ++t) {
-            const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, records, vertexOffsets);
-            const std::uint32_t b = vertexOf(x, y, z, edges[3 * t + 1], neighbours, records, vertexOffsets);
-            const std::uint32_t c = vertexOf(x, y, z, edges[3 * t + 2], neighbours, records, vertexOffsets);
+            const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, masks, vertexOffsets);
+            const std::uint32_t b = vertexOf(x, y, z, edges[3 * t + 1], neighbours, masks, vertexOffsets);
+            const std::uint32_t c = vertexOf(x, y, z, edges[3 * t + 2], neighbours, masks, vertexOffsets);
             *out++ = flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c);
         }
     });
@@ -449,19 +461,32 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
         sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
     });
 
-    // Count pass.
-    std::vector<BlockRecord> records(blockCount);
+    // Count pass: per block its counts; the edge masks of non-empty blocks go to per-thread lists.
+    std::vector<BlockCounts> counts(blockCount);
+    tbb::enumerable_thread_specific<std::vector<std::pair<std::int32_t, EdgeMask>>> found;
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
         if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
-        if (s.gatherAndClassify(blocks.origins[b], isovalue, cellBox)) countBlock(s, records[b]);
+        if (!s.gatherAndClassify(blocks.origins[b], isovalue, cellBox)) return;
+        EdgeMask mask;
+        countBlock(s, mask, counts[b]);
+        if (!counts[b].empty()) found.local().emplace_back(std::int32_t(b), mask);
     });
 
     // Serial prefix sums: each block's place in the output, independent of the thread count.
     std::vector<std::uint64_t> vertexOffsets(blockCount + 1), triangleOffsets(blockCount + 1);
+    EdgeMasks masks;
+    masks.slot.assign(blockCount, -1);
+    std::int32_t nonEmpty = 0;
     for (std::size_t b = 0; b < blockCount; ++b) {
-        vertexOffsets[b + 1] = vertexOffsets[b] + records[b].vertexCount;
-        triangleOffsets[b + 1] = triangleOffsets[b] + records[b].triangleCount;
+        vertexOffsets[b + 1] = vertexOffsets[b] + counts[b].vertices;
+        triangleOffsets[b + 1] = triangleOffsets[b] + counts[b].triangles;
+        if (!counts[b].empty()) masks.slot[b] = nonEmpty++;
+    }
+    masks.masks.resize(std::size_t(nonEmpty));
+    for (auto& list : found) {
+        for (const auto& [block, mask] : list) masks.masks[std::size_t(masks.slot[std::size_t(block)])] = mask;
+        list = {};
     }
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
@@ -477,18 +502,18 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
 
     // Fill pass.
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
-        if (records[b].vertexCount == 0 && records[b].triangleCount == 0) return;
+        if (counts[b].empty()) return;
         const Coord& origin = blocks.origins[b];
         BlockScratch<TreeT>& s = stencilScratch.local();
         s.gatherAndClassify(origin, isovalue, cellBox);
-        fillVertices(s, origin, records[b], vertexOffsets[b], context, columns);
-        if (records[b].triangleCount == 0) return;
+        fillVertices(s, origin, masks.of(std::int32_t(b)), vertexOffsets[b], context, columns);
+        if (counts[b].triangles == 0) return;
         std::int32_t neighbours[2][2][2];
         for (int dx = 0; dx < 2; ++dx)
             for (int dy = 0; dy < 2; ++dy)
                 for (int dz = 0; dz < 2; ++dz)
                     neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
-        fillTriangles(s, neighbours, records, vertexOffsets, flip, mesh.triangles.data() + triangleOffsets[b]);
+        fillTriangles(s, neighbours, masks, vertexOffsets, flip, mesh.triangles.data() + triangleOffsets[b]);
     });
     return mesh;
 }
