@@ -271,6 +271,55 @@ bool reveals(const std::vector<double>& sub, int m, double k)
     return false;
 }
 
+/// reveals() for a cell whose corners straddle k (the cell itself then hides nothing), without
+/// refining all of it: each edge and face whose corners lie on one side is evaluated only when
+/// the Lebesgue bound of its grid line (1.25) or plane (1.25^2) lets the tricubic reach k. The
+/// values are refineCell's (Tricubic.h), so the answer is reveals()'.
+bool boundaryReveals(const float* stencil, const std::vector<CubicWeights>& w, int m, double k)
+{
+    for (int sx = 0; sx < 3; ++sx)
+        for (int sy = 0; sy < 3; ++sy)
+            for (int sz = 0; sz < 3; ++sz) {
+                const int s[3] = {sx, sy, sz};
+                const int free = (sx == 2) + (sy == 2) + (sz == 2);
+                if (free == 0 || free == 3) continue;
+                int node[3][2], local[3][2];
+                for (int a = 0; a < 3; ++a) { // stencil index range and sub-point range per axis
+                    node[a][0] = s[a] == 2 ? 0 : 1 + s[a];
+                    node[a][1] = s[a] == 2 ? 3 : 1 + s[a];
+                    local[a][0] = s[a] == 1 ? m : 0;
+                    local[a][1] = s[a] == 0 ? 0 : m;
+                }
+                int corners = 0, inside = 0;
+                float lo = std::numeric_limits<float>::max(), hi = -lo;
+                for (int a = node[0][0]; a <= node[0][1]; ++a)
+                    for (int b = node[1][0]; b <= node[1][1]; ++b)
+                        for (int c = node[2][0]; c <= node[2][1]; ++c) {
+                            const float v = stencil[16 * a + 4 * b + c];
+                            lo = std::min(lo, v);
+                            hi = std::max(hi, v);
+                            const bool corner = (s[0] == 2 ? a == 1 || a == 2 : true) &&
+                                                (s[1] == 2 ? b == 1 || b == 2 : true) &&
+                                                (s[2] == 2 ? c == 1 || c == 2 : true);
+                            if (corner) {
+                                ++corners;
+                                inside += double(v) >= k;
+                            }
+                        }
+                if (inside != 0 && inside != corners) continue;
+                const double lebesgue = free == 1 ? 1.25 : 1.5625;
+                if (std::abs(k - 0.5 * (double(lo) + double(hi))) > lebesgue * 0.5 * (double(hi) - double(lo))) continue;
+                const bool cornersInside = inside != 0;
+                for (int p = local[0][0]; p <= local[0][1]; ++p)
+                    for (int q = local[1][0]; q <= local[1][1]; ++q)
+                        for (int r = local[2][0]; r <= local[2][1]; ++r)
+                            if ((tricubic(stencil, w[std::size_t(p)], w[std::size_t(q)], w[std::size_t(r)]) >= k) !=
+                                cornersInside)
+                                return true;
+            }
+    return false;
+}
+
 /// The 4x4x4 voxels around the cell at @a c (Tricubic.h layout).
 void gatherStencil(const Accessor& acc, const Coord& c, float* stencil)
 {
@@ -444,18 +493,28 @@ void refinedParts(const Coord& u, CellSetAccessor& refined, bool (&faces)[6], bo
 /// The surface of a transition cell: segments on its six faces (walked counter-clockwise from
 /// outside, each entering crossing joined to the next leaving one, McTables.h's rule), chained
 /// into loops, each fanned to its centre.
+struct FaceCrossing {
+    Ref key;
+    bool enters;
+};
+/// Per-thread buffers of meshTransitionCell.
+struct TransitionScratch {
+    std::vector<std::pair<Ref, Ref>> segments;
+    std::vector<FaceCrossing> walk;
+    std::vector<std::uint8_t> used;
+    std::vector<std::size_t> loop;
+};
+
 void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], const bool (&edgeRefined)[12],
-    const Packer& packer, Patch& patch)
+    const Packer& packer, TransitionScratch& scratch, Patch& patch)
 {
     using mc_tables_internal::edgeBetween;
     using mc_tables_internal::kFaceCorners;
     const int m = cv.m();
     const Coord& u = cv.cell();
-    struct Crossing {
-        Ref key;
-        bool enters;
-    };
-    std::vector<std::pair<Ref, Ref>> segments;
+    using Crossing = FaceCrossing;
+    std::vector<std::pair<Ref, Ref>>& segments = scratch.segments;
+    segments.clear();
     auto pairUp = [&segments](const std::vector<Crossing>& walk) {
         for (std::size_t i = 0; i < walk.size(); ++i) {
             if (!walk[i].enters) continue;
@@ -468,7 +527,7 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
             }
         }
     };
-    std::vector<Crossing> walk;
+    std::vector<Crossing>& walk = scratch.walk;
     for (int f = 0; f < 6; ++f) {
         const auto& loop = kFaceCorners[std::size_t(f)];
         if (faceRefined[f]) {
@@ -510,13 +569,14 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
     // Chain the segments into loops (each key starts one segment and ends one) and fan them. A
     // loop of two is the same chord along one refined edge from both faces: it encloses nothing
     // (the surfaces of the cells beyond those faces meet along that chord) and is skipped.
-    std::vector<bool> used(segments.size(), false);
-    std::vector<std::size_t> loop;
+    std::vector<std::uint8_t>& used = scratch.used;
+    used.assign(segments.size(), 0);
+    std::vector<std::size_t>& loop = scratch.loop;
     for (std::size_t first = 0; first < segments.size(); ++first) {
         if (used[first]) continue;
         loop.clear();
         for (std::size_t s = first; !used[s];) {
-            used[s] = true;
+            used[s] = 1;
             loop.push_back(s);
             for (std::size_t n = 0; n < segments.size(); ++n)
                 if (segments[n].first == segments[s].second) {
@@ -599,8 +659,11 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         Window window;
         TricubicWorkspace workspace;
         std::vector<double> sub;
+        std::vector<CubicWeights> weights;
     };
-    tbb::enumerable_thread_specific<DetectScratch> detectScratch;
+    std::vector<CubicWeights> weights;
+    for (int s = 0; s <= m; ++s) weights.push_back(cubicWeights(s, m));
+    tbb::enumerable_thread_specific<DetectScratch> detectScratch(DetectScratch{Window(), {}, {}, weights});
     forEach(origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
         const Coord& origin = origins[b];
         DetectScratch& scratch = detectScratch.local();
@@ -637,7 +700,9 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                     bool straddles = false;
                     for (const auto& o : kMcCornerOffset)
                         straddles |= (w.value(x + o.x, y + o.y, z + o.z) >= k) != (w.value(x, y, z) >= k);
-                    if (hidden.filter || !straddles) {
+                    if (hidden.filter && straddles) {
+                        if (!boundaryReveals(stencil, scratch.weights, m, k)) continue;
+                    } else if (!straddles) {
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
                         if (!crosses(scratch.sub, k)) continue;
                         if (hidden.filter && !reveals(scratch.sub, m, k)) continue;
@@ -704,9 +769,10 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     struct CellScratch {
         CellValues values;
         CellSetAccessor refined;
+        TransitionScratch transition;
     };
     tbb::enumerable_thread_specific<CellScratch> cellScratch(
-        [&] { return CellScratch{CellValues(m, double(k), packer), CellSetAccessor(refinedSet)}; });
+        [&] { return CellScratch{CellValues(m, double(k), packer), CellSetAccessor(refinedSet), {}}; });
     forEach(patches.size(), 1, threaded, interrupter, [&](std::size_t chunk) {
         const bool isRefined = chunk < refinedChunks;
         const std::vector<Coord>& cells = isRefined ? refined : transition;
@@ -723,7 +789,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
             } else {
                 refinedParts(cells[i], scratch.refined, faces, edges);
                 scratch.values.refineParts(cells[i], stencil, faces, edges);
-                meshTransitionCell(scratch.values, faces, edges, packer, patches[chunk]);
+                meshTransitionCell(scratch.values, faces, edges, packer, scratch.transition, patches[chunk]);
             }
         }
     });
@@ -802,14 +868,45 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     const std::size_t vertexCount = centreBase + centreOffset.back();
     if (vertexCount > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
-    auto indexOf = [&](Ref r, std::size_t chunk) -> std::uint32_t {
+    // A patch's fine vertices lie in a few slabs of the sorted keys: resolve them together,
+    // each search starting where the last one ended (galloping).
+    struct LocalIndex {
+        std::vector<Ref> refs;
+        std::vector<std::uint32_t> index;
+        void build(const Patch& p, const std::vector<Ref>& keys, std::size_t base)
+        {
+            refs.clear();
+            for (const auto& tri : p.triangles)
+                for (Ref r : tri)
+                    if ((r & kKindMask) == kFineRef) refs.push_back(r);
+            std::sort(refs.begin(), refs.end());
+            refs.erase(std::unique(refs.begin(), refs.end()), refs.end());
+            index.resize(refs.size());
+            auto it = keys.begin();
+            for (std::size_t i = 0; i < refs.size(); ++i) {
+                std::size_t step = 1;
+                auto hi = it;
+                while (hi != keys.end() && *hi < refs[i]) {
+                    it = hi;
+                    hi = std::size_t(keys.end() - hi) > step ? hi + std::ptrdiff_t(step) : keys.end();
+                    step *= 2;
+                }
+                it = std::lower_bound(it, hi, refs[i]);
+                index[i] = std::uint32_t(base + std::size_t(it - keys.begin()));
+            }
+        }
+        std::uint32_t find(Ref r) const
+        {
+            return index[std::size_t(std::lower_bound(refs.begin(), refs.end(), r) - refs.begin())];
+        }
+    };
+    tbb::enumerable_thread_specific<LocalIndex> localIndex;
+    auto indexOf = [&](Ref r, std::size_t chunk, const LocalIndex& local) -> std::uint32_t {
         switch (r & kKindMask) {
-        case kFineRef:
-            return std::uint32_t(fineBase + std::size_t(std::lower_bound(fineKeys.begin(), fineKeys.end(), r) - fineKeys.begin()));
+        case kFineRef: return local.find(r);
         case kCoarseRef:
             return remap[coarseVertex[std::size_t(std::lower_bound(coarse.begin(), coarse.end(), r) - coarse.begin())]];
-        default:
-            return std::uint32_t(centreBase + centreOffset[chunk] + std::size_t(r & ~kKindMask));
+        default: return std::uint32_t(centreBase + centreOffset[chunk] + std::size_t(r & ~kKindMask));
         }
     };
 
@@ -837,15 +934,17 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     }
     forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
         const Patch& p = patches[c];
+        LocalIndex& local = localIndex.local();
+        local.build(p, fineKeys, fineBase);
         openvdb::Vec3I* out = mesh.triangles.data() + triangleOffset[c];
         for (const auto& tri : p.triangles) {
-            const std::uint32_t a = indexOf(tri[0], c), b = indexOf(tri[1], c), d = indexOf(tri[2], c);
+            const std::uint32_t a = indexOf(tri[0], c, local), b = indexOf(tri[1], c, local), d = indexOf(tri[2], c, local);
             *out++ = flip ? openvdb::Vec3I(a, d, b) : openvdb::Vec3I(a, b, d);
         }
         for (std::size_t l = 0; l < p.memberEnds.size(); ++l) {
             const std::uint32_t begin = l == 0 ? 0 : p.memberEnds[l - 1], end = p.memberEnds[l];
             Vec3d sum(0.0);
-            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j], c)]);
+            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j], c, local)]);
             mesh.positions[centreBase + centreOffset[c] + l] = openvdb::Vec3s(sum / double(end - begin));
         }
     });
