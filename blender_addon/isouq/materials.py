@@ -8,7 +8,7 @@ import bpy
 HEAT_COLORMAP = "plasma"        # matplotlib name; the legend uses the same one
 STANDARD_BLUE = (0.05, 0.25, 0.85, 1.0)
 HIDDEN_ORANGE = (1.0, 0.45, 0.0, 1.0)
-HIDDEN_ALPHA = 0.45
+HIDDEN_ALPHA = 0.5
 
 
 def _srgb_to_linear(c):

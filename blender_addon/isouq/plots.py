@@ -47,8 +47,8 @@ def _colorbar(fig, cax, vmin, vmax, measure, colormap, extend="neither"):
     bar.formatter = mpl.ticker.ScalarFormatter(useMathText=True)
     bar.formatter.set_powerlimits((-2, 3))
     bar.update_ticks()
-    above = " (brighter: above the range)" if extend == "max" else ""
-    cax.set_xlabel(f"{measure} (world units){above}", fontsize=9)
+    above = "; top colour: this and above" if extend == "max" else ""
+    cax.set_xlabel(f"{measure} (world units{above})", fontsize=9)
     return bar
 
 
@@ -94,16 +94,19 @@ def figure(path, image_path, title, colorbar=None, swatches=(), cdf=None, width=
     from matplotlib.patches import Patch
     image = plt.imread(image_path)
     aspect = image.shape[0] / image.shape[1]
+    width = min(width, 6.0 / aspect)                  # tall renders: at most 6 in high
     side = 0.75 * width if cdf else 0.0
-    key = (0.75 if (colorbar or swatches) else 0.0) + (0.3 if (colorbar and swatches) else 0.0)
+    rows = 1 if width >= 5.5 else len(swatches)      # narrow figures stack the swatches
+    key = (0.75 if (colorbar or swatches) else 0.0) + 0.3 * (rows if colorbar and swatches else
+                                                            max(rows - 1, 0))
     fig = plt.figure(figsize=(width + side, width * aspect + key + 0.45), dpi=dpi)
     total_w, total_h = fig.get_size_inches()
     ax = fig.add_axes([0, (key) / total_h, width / total_w, width * aspect / total_h])
     ax.imshow(image, interpolation="lanczos")
     ax.set_axis_off()
-    fig.suptitle(title, fontsize=11, y=1 - 0.12 / total_h, va="top")
+    fig.suptitle(title, fontsize=11, y=1 - 0.12 / total_h, va="top", wrap=True)
     if colorbar:
-        bottom = 0.42 + (0.3 if swatches else 0.0)
+        bottom = 0.42 + (0.3 * rows if swatches else 0.0)
         cax = fig.add_axes([0.12 * width / total_w, bottom / total_h, 0.76 * width / total_w,
                             0.13 / total_h])
         _colorbar(fig, cax, colorbar["vmin"], colorbar["vmax"], colorbar["measure"],
@@ -111,12 +114,22 @@ def figure(path, image_path, title, colorbar=None, swatches=(), cdf=None, width=
     if swatches:
         handles = [Patch(facecolor=c, alpha=a, edgecolor="0.3", label=label)
                    for label, c, a in swatches]
-        fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False,
+        fig.legend(handles=handles, loc="lower center", ncol=len(handles) // rows, frameon=False,
                    fontsize=9, bbox_to_anchor=(0.5 * width / total_w, 0.0))
     if cdf:
         cax = fig.add_axes([(width + 0.12 * side) / total_w, (key + 0.5) / total_h,
                             0.8 * side / total_w, (width * aspect - 0.9) / total_h])
         _draw_cdf(cax, cdf["values"], cdf.get("threshold"), cdf.get("measure", "err_est"))
-    fig.savefig(path, dpi=dpi)
+    _save_small(fig, path, dpi)
     plt.close(fig)
     return path
+
+
+def _save_small(fig, path, dpi):
+    """Opaque RGB PNG (no alpha channel: a quarter fewer bytes), best compression."""
+    import io
+    from PIL import Image
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=dpi, format="png")
+    buffer.seek(0)
+    Image.open(buffer).convert("RGB").save(path, optimize=True)

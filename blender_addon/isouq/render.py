@@ -85,12 +85,17 @@ def configure(scene, engine="BLENDER_EEVEE", size=800, samples=16):
 
 
 def render_view(context, objects, path, engine="BLENDER_EEVEE", size=800, exr_path=None,
-                aovs=("err_est", "hidden"), samples=16, direction=(1.0, -1.2, 0.8)):
-    """Renders `objects` (framed) to the PNG `path`; with `exr_path` also a multilayer EXR
-    holding the combined pass and the shader AOVs `aovs`. Returns the paths written."""
+                aovs=("err_est", "hidden"), samples=16, direction=(1.0, -1.2, 0.8), frame=True):
+    """Renders `objects` (framed, or with the current camera when not `frame`) to the PNG
+    `path`; with `exr_path` also a multilayer EXR holding the combined pass and the shader AOVs
+    `aovs`. Returns the paths written."""
     scene = context.scene
+    resolution = scene.render.resolution_x, scene.render.resolution_y
     configure(scene, engine, size, samples)
-    frame_camera(scene, [o for o in objects if not o.hide_render], direction, size)
+    if frame:
+        frame_camera(scene, [o for o in objects if not o.hide_render], direction, size)
+    else:
+        scene.render.resolution_x, scene.render.resolution_y = resolution
     if exr_path:
         materials.ensure_aovs(context.view_layer, aovs)
         context.view_layer.use_pass_z = True           # depth: which surface a pixel shows

@@ -66,7 +66,13 @@ def parse(argv):
 
 
 def linear_to_srgb(c):
-    return 12.92 * c if c <= 0.0031308 else 1.055 * c ** (1 / 2.4) - 0.055
+    c = np.clip(np.asarray(c, np.float64), 0, 1)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(c):
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def figure_key(args, s, obj, clipped):
@@ -74,22 +80,62 @@ def figure_key(args, s, obj, clipped):
     from isouq import materials, views
     bar = dict(vmin=s.heat_min, vmax=s.heat_max, measure=s.measure,
                colormap=materials.HEAT_COLORMAP, extend="max" if clipped else "neither")
-    orange = (materials.HIDDEN_ORANGE[:3])
-    srgb = lambda rgba: tuple(linear_to_srgb(c) for c in rgba[:3])
+    orange, blue = np.array(materials.HIDDEN_ORANGE[:3]), np.array(materials.STANDARD_BLUE[:3])
+
+    def srgb(linear):
+        return tuple(float(c) for c in linear_to_srgb(linear[:3]))
+
     if args.view == "threshold":
         t = s.threshold_value
-        return None, [(f"{s.measure} <= {t:.3g}", srgb(s.colour_below), 1.0),
-                      (f"{s.measure} > {t:.3g}", srgb(s.colour_above), 1.0)], \
+        return None, [(f"{s.measure} <= {t:.3g}", srgb(np.array(s.colour_below)), 1.0),
+                      (f"{s.measure} > {t:.3g}", srgb(np.array(s.colour_above)), 1.0)], \
             dict(values=views.measure_values(obj, s.measure), threshold=t, measure=s.measure)
     if args.view == "hidden":
-        return None, [("standard MC", srgb(materials.STANDARD_BLUE), 1.0),
-                      ("with hidden features", srgb(orange), materials.HIDDEN_ALPHA)], None
+        a = materials.HIDDEN_ALPHA          # the layers' blend (render_hidden_over_standard)
+        return None, [("standard MC only", srgb(blue), 1.0),
+                      ("hidden features only", srgb(a * orange + (1 - a)), 1.0),
+                      ("both (orange over blue)", srgb(a * orange + (1 - a) * blue), 1.0)], None
     if args.view == "combined":
         return bar, [("refined (hidden feature)", srgb(orange), 1.0)], None
     if args.view == "standard" or obj.data.attributes.get(s.measure) is None:
         return None, [], None
     return bar, [], None
 
+
+
+def render_hidden_over_standard(context, standard, hidden, args, engine):
+    """C6 as two layers under one camera: standard MC opaque blue, then the hidden-feature
+    mesh alone in opaque orange, laid over it with HIDDEN_ALPHA. Where the two meshes
+    coincide a single 3D render would z-fight; the layers show exactly which surface exists
+    where (blue only, orange only, both). The EXR, if asked, is of the standard layer."""
+    from isouq import materials, render
+    render.configure(context.scene, engine, args.size, args.samples)
+    render.frame_camera(context.scene, [standard, hidden], args.direction, args.size)
+    materials.assign(hidden, materials.solid_material("ISOUQ_hidden_layer",
+                                                      materials.HIDDEN_ORANGE))
+    out = os.path.abspath(args.out)
+    layer = out + ".hidden.png"
+    hidden.hide_render = True
+    written = render.render_view(context, [standard], out, engine, args.size,
+                                 os.path.abspath(args.exr) if args.exr else None,
+                                 (args.measure, "hidden"), args.samples, frame=False)
+    hidden.hide_render, standard.hide_render = False, True
+    render.render_view(context, [hidden], layer, engine, args.size, None, (), args.samples,
+                       frame=False)
+    standard.hide_render = False
+    below, above = (np.array(bpy.data.images.load(p).pixels[:], np.float64) for p in (out, layer))
+    os.remove(layer)
+    below, above = below.reshape(-1, 4), above.reshape(-1, 4)
+    a = above[:, 3:] * materials.HIDDEN_ALPHA          # blend in linear light, as 3D would
+    alpha = a + below[:, 3:] * (1 - a)
+    rgb = (srgb_to_linear(above[:, :3]) * a
+           + srgb_to_linear(below[:, :3]) * below[:, 3:] * (1 - a)) / np.maximum(alpha, 1e-9)
+    rgb = linear_to_srgb(rgb)
+    image = bpy.data.images.load(out)
+    image.pixels.foreach_set(np.hstack([rgb, alpha]).astype(np.float32).ravel())
+    image.filepath_raw, image.file_format = out, "PNG"
+    image.save()
+    return written
 
 
 def main():
@@ -144,6 +190,8 @@ def main():
             s.heat_max = float(np.nanpercentile(views.measure_values(obj.isouq.partner, s.measure),
                                                 args.clip_percentile))
             clipped = True
+    if args.hidden and args.view not in ("hidden", "combined"):
+        hidden.hide_render = True          # the other views are of the standard mesh
     if args.cdf:
         values = views.measure_values(obj, s.measure)
         plots.cdf_plot(args.cdf, values, views.resolve_threshold(s, values), s.measure)
@@ -152,9 +200,12 @@ def main():
 
     objects = [o for o in context.scene.objects if o.type == "MESH" and not o.hide_render]
     engine = "CYCLES" if args.engine == "cycles" else "BLENDER_EEVEE"
-    written = render.render_view(context, objects, os.path.abspath(args.out), engine, args.size,
-                                 os.path.abspath(args.exr) if args.exr else None,
-                                 (s.measure, "hidden"), args.samples, args.direction)
+    if args.view == "hidden":
+        written = render_hidden_over_standard(context, obj, obj.isouq.partner, args, engine)
+    else:
+        written = render.render_view(context, objects, os.path.abspath(args.out), engine,
+                                     args.size, os.path.abspath(args.exr) if args.exr else None,
+                                     (s.measure, "hidden"), args.samples, args.direction)
     if args.figure:
         title = args.title or f"{obj.name} ({obj.isouq.method_shown or 'isouq'}): {args.view}"
         bar, swatches, cdf = figure_key(args, s, obj, clipped)
