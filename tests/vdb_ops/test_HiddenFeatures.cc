@@ -21,6 +21,7 @@
 #include <random>
 #include <set>
 #include <string>
+#include <tuple>
 #include <utility>
 
 using isouq::HiddenFeatureSettings;
@@ -440,10 +441,26 @@ TEST_CASE("HiddenFeatures: report on the scans (docs/hidden-features.md table)",
             name.c_str(), double(volume.isovalue), stats.cellsTotal, stats.cellsFlagged, 100 * stats.fraction(),
             stats.cellsRefined, fstats.cellsRefined, components(standard), components(hidden),
             components(hiddenFiltered), tMc, tHf, tHf / tMc, tHff, tHff / tMc);
-        if (const char* dir = std::getenv("ISOUQ_HIDDEN_PLY_DIR")) {
-            isouq::writePly(standard, std::string(dir) + "/" + name + "_standard.ply");
-            isouq::writePly(hidden, std::string(dir) + "/" + name + "_hidden.ply");
-        }
+    }
+}
+
+TEST_CASE("HiddenFeatures: meshes for the figures of docs/hidden-features.md", "[.figures]")
+{
+    // ISOUQ_HIDDEN_PLY_DIR=DIR: NAME_standard.ply and NAME_hidden.ply with provenance, read by
+    // scripts/hidden_features_figures.py.
+    openvdb::initialize();
+    const char* dir = std::getenv("ISOUQ_HIDDEN_PLY_DIR");
+    REQUIRE(dir);
+    const std::tuple<const char*, std::string, std::optional<int>, float> inputs[] = {
+        {"teardrop", "field:teardrop", 32, -0.001f}, {"tubey", "field:tubey", 32, 0.0f},
+        {"bucky", dataFile("bucky_32x32x32_uint8.raw"), std::nullopt, 51.0f}};
+    for (const auto& [name, input, resolution, k] : inputs) {
+        const LoadedVolume volume = load(input, resolution, k);
+        MeshSettings settings = settingsAt(volume.isovalue);
+        settings.provenance = true;
+        isouq::writePly(isouq::extractIsosurface(*volume.grid, settings), std::string(dir) + "/" + name + "_standard.ply");
+        isouq::writePly(isouq::extractWithHiddenFeatures(*volume.grid, settings, HiddenFeatureSettings{}),
+            std::string(dir) + "/" + name + "_hidden.ply");
     }
 }
 
