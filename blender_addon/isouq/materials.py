@@ -9,6 +9,9 @@ HEAT_COLORMAP = "plasma"        # matplotlib name; the legend uses the same one
 STANDARD_BLUE = (0.05, 0.25, 0.85, 1.0)
 HIDDEN_ORANGE = (1.0, 0.45, 0.0, 1.0)
 HIDDEN_ALPHA = 0.5
+# combined view: refined faces in a green that the heat map's plasma never reaches (its top
+# is orange-yellow, which would read as a large error)
+REFINED_GREEN = (0.02, 0.45, 0.12, 1.0)
 
 
 def _srgb_to_linear(c):
@@ -172,13 +175,13 @@ def _hidden_mask(nodes, links):
 
 
 def combined_material(measure="err_est", vmin=0.0, vmax=1.0):
-    """Heat map of `measure`, orange where the face comes from hidden-feature refinement."""
+    """Heat map of `measure`, green where the face comes from hidden-feature refinement."""
     mat, nodes, links = _fresh("ISOUQ_combined")
     colour, value = _heat_colour(nodes, links, measure, vmin, vmax)
     hidden = _hidden_mask(nodes, links)
     mix = nodes.new("ShaderNodeMixRGB")
     mix.name = mix.label = "Hidden mix"
-    mix.inputs["Color2"].default_value = HIDDEN_ORANGE
+    mix.inputs["Color2"].default_value = REFINED_GREEN
     links.new(hidden, mix.inputs["Fac"])
     links.new(colour, mix.inputs["Color1"])
     _surface(nodes, links, mix.outputs["Color"])

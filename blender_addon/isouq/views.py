@@ -261,7 +261,7 @@ def show_hidden(context, obj):
 
 
 def combined_view(context, obj):
-    """Heat map of the measure on the hidden-feature mesh, orange where refined."""
+    """Heat map of the measure on the hidden-feature mesh, green where refined."""
     standard, hidden = _hidden_pair(obj)
     s = context.scene.isouq
     values = measure_values(hidden, s.measure)

@@ -44,7 +44,7 @@ TD32="--mesh $WORK/td32.ply --hidden $WORK/td32_hf.ply --summary $WORK/td32.json
 render teardrop_hidden $TD32 --view hidden \
     --title "Teardrop 32³: standard MC (2 pieces) and hidden features (1 piece) (C6)"
 render teardrop_combined $TD32 --view combined \
-    --title "Teardrop 32³ with hidden features: err_est, refined cells in orange"
+    --title "Teardrop 32³ with hidden features: err_est, refined cells in green"
 
 SK="--mesh $WORK/skull.ply --hidden $WORK/skull_hf.ply --summary $WORK/skull.json --direction 0.6,-1,0.25"
 render skull_heatmap $SK --view heatmap --clip-percentile 99 \
@@ -54,4 +54,4 @@ render skull_threshold $SK --view threshold --percentile 90 \
 render skull_hidden $SK --view hidden \
     --title "CT skull: hidden features (orange) over standard MC (blue) (C6)"
 render skull_combined $SK --view combined --clip-percentile 99 \
-    --title "CT skull with hidden features: err_est, refined cells in orange"
+    --title "CT skull with hidden features: err_est, refined cells in green"

@@ -96,7 +96,7 @@ def figure_key(args, s, obj, clipped):
                       ("hidden features only", srgb(a * orange + (1 - a)), 1.0),
                       ("both (orange over blue)", srgb(a * orange + (1 - a) * blue), 1.0)], None
     if args.view == "combined":
-        return bar, [("refined (hidden feature)", srgb(orange), 1.0)], None
+        return bar, [("refined (hidden feature)", srgb(np.array(materials.REFINED_GREEN)), 1.0)], None
     if args.view == "standard" or obj.data.attributes.get(s.measure) is None:
         return None, [], None
     return bar, [], None
