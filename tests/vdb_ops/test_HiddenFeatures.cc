@@ -463,13 +463,3 @@ TEST_CASE("HiddenFeatures: meshes for the figures of docs/hidden-features.md", "
             std::string(dir) + "/" + name + "_hidden.ply");
     }
 }
-
-TEST_CASE("HiddenFeatures: one run for profiling", "[.prof]")
-{
-    openvdb::initialize();
-    const LoadedVolume volume = load(dataFile("engine_256x256x128_uint8.raw"), std::nullopt, 71.0f);
-    HiddenFeatureSettings hf;
-    hf.filter = std::getenv("PROF_FILTER") != nullptr;
-    const Mesh mesh = isouq::extractWithHiddenFeatures(*volume.grid, settingsAt(71.0f), hf);
-    CHECK(mesh.triangleCount() > 0);
-}
