@@ -2,6 +2,8 @@
 // over vertices, area and enclosed volume in double (MeshTopology.h).
 #include "isouq/MeshTopology.h"
 
+#include <tbb/parallel_invoke.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -151,9 +153,9 @@ MeshTopologyStats measureTopology(const Mesh& mesh)
     using namespace topology_internal;
     checkIndices(mesh);
     MeshTopologyStats stats;
-    countEdges(mesh, stats);
-    labelTriangles(mesh, stats.components);
-    measureGeometry(mesh, stats);
+    // Three independent passes writing disjoint fields of stats.
+    tbb::parallel_invoke([&] { countEdges(mesh, stats); },
+        [&] { labelTriangles(mesh, stats.components); }, [&] { measureGeometry(mesh, stats); });
     return stats;
 }
 
