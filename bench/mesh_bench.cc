@@ -36,7 +36,16 @@
 
 namespace {
 
-enum class Algo { Isouq, VolumeToMesh };
+/// isouq's linear pass (positions only), isouq's full pass (every method, estimate and
+/// difference per vertex, issue 3), or OpenVDB's volumeToMesh.
+enum class Algo { Isouq, IsouqFull, VolumeToMesh };
+
+const char* algoName(Algo a) { return a == Algo::Isouq ? "isouq" : a == Algo::IsouqFull ? "isouq-full" : "vtm"; }
+
+Algo algoFromName(const std::string& s)
+{
+    return s == "isouq" ? Algo::Isouq : s == "isouq-full" ? Algo::IsouqFull : Algo::VolumeToMesh;
+}
 
 struct CallResult {
     std::size_t triangles = 0;   // quads count as two
@@ -44,9 +53,27 @@ struct CallResult {
 };
 
 /// The benchmark volumes: `sphereN` is the level-set sphere of radius 0.4 centred at
-/// (0.5, 0.5, 0.5) with voxel size 1/N; `smoke` is data/smoke.vdb's "density" grid.
+/// (0.5, 0.5, 0.5) with voxel size 1/N; `smoke` is data/smoke.vdb's "density" grid; `tangle32`
+/// is SPEC §5's Tangle sampled at 32^3 on [-1, 1]^3 (the paper's "less than a millisecond").
 openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dataDir)
 {
+    if (name == "tangle32") {
+        const int n = 32;
+        const double h = 2.0 / (n - 1);
+        auto grid = openvdb::FloatGrid::create(1.0f);
+        auto acc = grid->getAccessor();
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < n; ++j)
+                for (int k = 0; k < n; ++k) {
+                    const double x = -1 + i * h, y = -1 + j * h, z = -1 + k * h;
+                    acc.setValueOn({i, j, k}, float(x * x * x * x + y * y * y * y + z * z * z * z -
+                                                     (x * x + y * y + z * z) + 0.4));
+                }
+        grid->setTransform(openvdb::math::Transform::createLinearTransform(h));
+        grid->insertMeta(isouq::kDataBoundsMinMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(0)));
+        grid->insertMeta(isouq::kDataBoundsMaxMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(n - 1)));
+        return grid;
+    }
     if (name.rfind("sphere", 0) == 0) {
         const int n = std::stoi(name.substr(6));
         return openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
@@ -63,15 +90,15 @@ openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dat
     throw std::runtime_error("unknown case " + name + " (sphereN or smoke)");
 }
 
-float isovalueOf(const std::string& name) { return name == "smoke" ? 0.1f : 0.0f; }
+float isovalueOf(const std::string& name) { return name == "smoke" || name == "tangle32" ? 0.1f : 0.0f; }
 
 CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue)
 {
     CallResult r;
-    if (algo == Algo::Isouq) {
+    if (algo != Algo::VolumeToMesh) {
         isouq::MeshSettings settings;
         settings.isovalue = isovalue;
-        settings.uncertainty = false;
+        settings.uncertainty = algo == Algo::IsouqFull;
         const isouq::Mesh mesh = isouq::extractIsosurface(grid, settings);
         r.triangles = mesh.triangles.size();
         r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
@@ -164,7 +191,7 @@ double memoryIncrementMiB(const std::string& caseName, Algo algo, int threads, c
         dup2(fds[1], STDOUT_FILENO);
         close(fds[0]);
         close(fds[1]);
-        const std::string algoName = algo == Algo::Isouq ? "isouq" : "vtm";
+        const std::string algoName = ::algoName(algo);
         const std::string threadText = std::to_string(threads);
         execl("/proc/self/exe", "isouq_bench", "--child-memory", caseName.c_str(), algoName.c_str(),
             threadText.c_str(), dataDir.c_str(), static_cast<char*>(nullptr));
@@ -189,6 +216,7 @@ struct Options {
     int repeats = 7;
     int memoryRuns = 3;
     std::string dataDir = ISOUQ_DATA_DIR;
+    Algo isouqPass = Algo::Isouq; // --pass linear|full
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -213,12 +241,14 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--repeats") o.repeats = std::stoi(next());
         else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
         else if (arg == "--data") o.dataDir = next();
+        else if (arg == "--pass") o.isouqPass = next() == "full" ? Algo::IsouqFull : Algo::Isouq;
         else if (arg == "--threads") {
             o.threads.clear();
             for (const std::string& t : splitCommas(next())) o.threads.push_back(t == "default" ? 0 : std::stoi(t));
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
-                                     "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR]");
+                                     "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
+                                     "[--pass linear|full]");
         }
     }
     return o;
@@ -233,7 +263,7 @@ void benchCase(const std::string& caseName, const Options& o)
         const std::string load = loadAverage();
         const auto control = limitThreads(threads);
         const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
-        const Algo algos[2] = {Algo::Isouq, Algo::VolumeToMesh};
+        const Algo algos[2] = {o.isouqPass, Algo::VolumeToMesh};
         std::size_t tris[2] = {0, 0};
         for (int a = 0; a < 2; ++a) tris[a] = runOnce(algos[a], *grid, isovalue).triangles; // warm-up
         std::vector<double> wall[2], cpu[2];
@@ -269,10 +299,12 @@ int main(int argc, char** argv)
     try {
         openvdb::initialize();
         if (argc == 6 && std::string(argv[1]) == "--child-memory")
-            return childMemory(argv[2], std::string(argv[3]) == "isouq" ? Algo::Isouq : Algo::VolumeToMesh,
+            return childMemory(argv[2], algoFromName(argv[3]),
                 std::stoi(argv[4]), argv[5]);
         const Options o = parseOptions(argc, argv);
-        std::printf("Load average at start: %s; %d repeats (median), memory: median of %d fresh processes.\n\n",
+        std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
+                    "fresh processes.\n\n",
+            o.isouqPass == Algo::IsouqFull ? "full (every method, estimate and difference)" : "linear (positions)",
             loadAverage().c_str(), o.repeats, o.memoryRuns);
         std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
                     "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "
