@@ -46,8 +46,7 @@ constexpr int kBlock = 8;
 constexpr int kMaxSubdivisions = 64;
 
 /// A vertex of a new triangle. The top two bits say what it is:
-///  kFineRef:   the crossing of a subcell edge, (x, y, z, axis) of its lower point on the fine
-///              lattice m * voxel + sub, relative to the lattice origin (20 bits each);
+///  kFineRef:   the crossing of a subcell edge, by its index in the patch's crossings;
 ///  kCoarseRef: the standard vertex of a grid edge, (x, y, z, axis) of its lower voxel, relative
 ///              to the voxel origin;
 ///  kCentreRef: a fan centre, by its index in the patch that made it.
@@ -55,7 +54,8 @@ using Ref = std::uint64_t;
 constexpr Ref kFineRef = 0, kCoarseRef = Ref(1) << 62, kCentreRef = Ref(2) << 62, kKindMask = Ref(3) << 62;
 constexpr int kCoordBits = 20;
 
-/// Packs lattice points into Refs; the origins make every coordinate of the refined region fit.
+/// Packs lattice points into keys (the fine key of a subcell edge is (x, y, z, axis) of its lower
+/// point on the fine lattice m * voxel + sub, 20 bits each); the origins make every coordinate of the refined region fit.
 struct Packer {
     Coord fineOrigin, voxelOrigin;
 
@@ -83,13 +83,14 @@ struct Packer {
 
 struct FineCrossing {
     Ref key;
-    float t; // along the subcell edge from its lower point
+    float t;            // along the subcell edge from its lower point
+    std::uint32_t slot; // where its global vertex index goes (set when the patches are merged)
 };
 
 /// What one chunk of refined or transition cells adds. Triangles face from inside (>= k)
 /// towards outside, as the case tables' do.
 struct Patch {
-    std::vector<FineCrossing> crossings; // refined cells: every crossing of their subcell edges
+    std::vector<FineCrossing> crossings; // the crossings its triangles and loops use (kFineRef)
     std::vector<std::array<Ref, 3>> triangles;
     std::vector<Ref> members;             // transition loops: their vertices,
     std::vector<std::uint32_t> memberEnds; // one end per loop (= per fan centre)
@@ -385,21 +386,22 @@ public:
     bool inside(const Coord& local) const { return value(local) >= mK; }
     Coord fine(const Coord& local) const { return times(mCell, mM) + local; }
 
-    /// The subcell edge between neighbouring sub-points @a a and @a b (local), keyed by its
-    /// lower fine point and axis.
-    Ref edgeKey(const Coord& a, const Coord& b) const
+    /// The crossing of the subcell edge from sub-point @a lo along @a axis: keyed by its lower
+    /// fine point and axis, linear (SPEC §2 on the subcell edge, from its lower point). Every
+    /// cell sharing the edge computes it from the same values, so the same bits.
+    FineCrossing crossing(const Coord& lo, int axis) const
     {
-        const Coord& lo = a < b ? a : b;
-        const Coord& hi = a < b ? b : a;
-        int axis = 0;
-        while (hi[axis] == lo[axis]) ++axis;
-        return mPacker.fine(fine(lo), axis);
+        Coord hi = lo;
+        hi[axis] += 1;
+        const double f0 = value(lo), f1 = value(hi);
+        const double t = std::clamp((mK - f0) / (f1 - f0), 0.0, 1.0);
+        return FineCrossing{mPacker.fine(fine(lo), axis), float(t), 0};
     }
 
-    /// Every crossing subcell edge of the cell with its linear crossing (SPEC §2 on the subcell
-    /// edge, from its lower point).
-    void writeCrossings(std::vector<FineCrossing>& out) const
+    /// Appends every crossing subcell edge of the cell to @a out; crossingRef then finds them.
+    void writeCrossings(std::vector<FineCrossing>& out)
     {
+        mEdgeRefs.resize(3 * std::size_t(mN) * mN * mN);
         for (int axis = 0; axis < 3; ++axis) {
             Coord hiBound(mM, mM, mM);
             hiBound[axis] = mM - 1;
@@ -409,12 +411,16 @@ public:
                     for (p[2] = 0; p[2] <= hiBound[2]; ++p[2]) {
                         Coord q = p;
                         q[axis] += 1;
-                        const double f0 = value(p), f1 = value(q);
-                        if ((f0 >= mK) == (f1 >= mK)) continue;
-                        const double t = std::clamp((mK - f0) / (f1 - f0), 0.0, 1.0);
-                        out.push_back(FineCrossing{mPacker.fine(fine(p), axis), float(t)});
+                        if (inside(p) == inside(q)) continue;
+                        mEdgeRefs[3 * subIndex(p[0], p[1], p[2], mN) + std::size_t(axis)] = kFineRef | Ref(out.size());
+                        out.push_back(crossing(p, axis));
                     }
         }
+    }
+    /// The Ref of a crossing writeCrossings appended.
+    Ref crossingRef(const Coord& lo, int axis) const
+    {
+        return mEdgeRefs[3 * subIndex(lo[0], lo[1], lo[2], mN) + std::size_t(axis)];
     }
 
 private:
@@ -430,11 +436,12 @@ private:
     Coord mCell;
     std::vector<CubicWeights> mWeights;
     std::vector<double> mValues;
+    std::vector<Ref> mEdgeRefs; // per (sub-point, axis) of a refined cell: its crossing's Ref
     TricubicWorkspace mWorkspace;
 };
 
 /// Marching cubes on the m^3 subcells of a refined cell (McTables.h, inside is >= k).
-void meshRefinedCell(const CellValues& cv, Patch& patch)
+void meshRefinedCell(CellValues& cv, Patch& patch)
 {
     const int m = cv.m();
     cv.writeCrossings(patch.crossings);
@@ -454,10 +461,7 @@ void meshRefinedCell(const CellValues& cv, Patch& patch)
                 for (int e = 0; e < 12; ++e) {
                     if (!((crossing >> e) & 1)) continue;
                     const McEdge& edge = kMcEdges[std::size_t(e)];
-                    const Coord a = base.offsetBy(edge.dx, edge.dy, edge.dz);
-                    Coord b = a;
-                    b[edge.axis] += 1;
-                    keys[std::size_t(e)] = cv.edgeKey(a, b);
+                    keys[std::size_t(e)] = cv.crossingRef(base.offsetBy(edge.dx, edge.dy, edge.dz), edge.axis);
                 }
                 const auto& edges = kMcCases.triangleEdges[std::size_t(cubeCase)];
                 for (int t = 0; t < count; ++t)
@@ -503,6 +507,8 @@ struct TransitionScratch {
     std::vector<FaceCrossing> walk;
     std::vector<std::uint8_t> used;
     std::vector<std::size_t> loop;
+    std::vector<Ref> edgeRefs;          // per (sub-point, axis): its crossing's Ref, once made
+    std::vector<std::size_t> edgesMade; // the entries to clear for the next cell
 };
 
 void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], const bool (&edgeRefined)[12],
@@ -515,6 +521,25 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
     using Crossing = FaceCrossing;
     std::vector<std::pair<Ref, Ref>>& segments = scratch.segments;
     segments.clear();
+    // A subcell edge is walked from two subfaces (or two faces): one Ref for both.
+    constexpr Ref kNoRef = ~Ref(0);
+    const std::size_t n = std::size_t(m + 1);
+    if (scratch.edgeRefs.size() != 3 * n * n * n) scratch.edgeRefs.assign(3 * n * n * n, kNoRef);
+    for (std::size_t i : scratch.edgesMade) scratch.edgeRefs[i] = kNoRef;
+    scratch.edgesMade.clear();
+    auto fineRef = [&](const Coord& a, const Coord& b) {
+        const Coord& lo = a < b ? a : b;
+        int axis = 0;
+        while (a[axis] == b[axis]) ++axis;
+        const std::size_t slot = 3 * subIndex(lo[0], lo[1], lo[2], int(n)) + std::size_t(axis);
+        Ref& r = scratch.edgeRefs[slot];
+        if (r == kNoRef) {
+            r = kFineRef | Ref(patch.crossings.size());
+            patch.crossings.push_back(cv.crossing(lo, axis));
+            scratch.edgesMade.push_back(slot);
+        }
+        return r;
+    };
     auto pairUp = [&segments](const std::vector<Crossing>& walk) {
         for (std::size_t i = 0; i < walk.size(); ++i) {
             if (!walk[i].enters) continue;
@@ -542,7 +567,7 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
                     for (int i = 0; i < 4; ++i) {
                         const Coord& a = corner[i];
                         const Coord& b = corner[(i + 1) % 4];
-                        if (cv.inside(a) != cv.inside(b)) walk.push_back({cv.edgeKey(a, b), cv.inside(b)});
+                        if (cv.inside(a) != cv.inside(b)) walk.push_back({fineRef(a, b), cv.inside(b)});
                     }
                     pairUp(walk);
                 }
@@ -557,7 +582,7 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
                 const Coord step = unitStep(a, b, m);
                 for (int s = 0; s < m; ++s) {
                     const Coord p = a + times(step, s), q = a + times(step, s + 1);
-                    if (cv.inside(p) != cv.inside(q)) walk.push_back({cv.edgeKey(p, q), cv.inside(q)});
+                    if (cv.inside(p) != cv.inside(q)) walk.push_back({fineRef(p, q), cv.inside(q)});
                 }
             } else if (cv.inside(a) != cv.inside(b)) { // the standard vertex of this grid edge
                 const McEdge& edge = kMcEdges[std::size_t(e)];
@@ -794,21 +819,32 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         }
     });
 
-    // New vertices: subcell-edge crossings, sorted by key and shared (refined neighbours write
-    // the same crossing bit for bit).
-    std::vector<FineCrossing> fine;
-    for (Patch& p : patches) {
-        fine.insert(fine.end(), p.crossings.begin(), p.crossings.end());
-        std::vector<FineCrossing>().swap(p.crossings);
-    }
+    // New vertices: subcell-edge crossings, sorted by key and shared (every cell that uses a
+    // crossing writes it bit for bit); fineIndex maps each patch's crossing to its vertex.
+    std::vector<std::size_t> crossingOffset(patches.size() + 1, 0);
+    for (std::size_t c = 0; c < patches.size(); ++c)
+        crossingOffset[c + 1] = crossingOffset[c] + patches[c].crossings.size();
+    if (crossingOffset.back() > std::numeric_limits<std::uint32_t>::max())
+        OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
+    std::vector<FineCrossing> fine(crossingOffset.back());
+    forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
+        std::vector<FineCrossing>& from = patches[c].crossings;
+        for (std::size_t i = 0; i < from.size(); ++i) {
+            fine[crossingOffset[c] + i] = from[i];
+            fine[crossingOffset[c] + i].slot = std::uint32_t(crossingOffset[c] + i);
+        }
+        std::vector<FineCrossing>().swap(from);
+    });
     auto byKey = [](const FineCrossing& a, const FineCrossing& b) { return a.key < b.key; };
     if (threaded) tbb::parallel_sort(fine.begin(), fine.end(), byKey);
     else std::sort(fine.begin(), fine.end(), byKey);
-    fine.erase(std::unique(fine.begin(), fine.end(), [](const FineCrossing& a, const FineCrossing& b) {
-        return a.key == b.key;
-    }), fine.end());
-    std::vector<Ref> fineKeys(fine.size());
-    for (std::size_t i = 0; i < fine.size(); ++i) fineKeys[i] = fine[i].key;
+    std::vector<std::uint32_t> fineIndex(fine.size());
+    std::size_t fineCount = 0;
+    for (std::size_t i = 0; i < fine.size(); ++i) {
+        if (i == 0 || fine[i].key != fine[fineCount - 1].key) fine[fineCount++] = fine[i];
+        fineIndex[fine[i].slot] = std::uint32_t(fineCount - 1);
+    }
+    fine.resize(fineCount);
 
     // Standard vertices used by transition loops, found by their grid edge.
     std::vector<Ref> coarse;
@@ -868,42 +904,9 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     const std::size_t vertexCount = centreBase + centreOffset.back();
     if (vertexCount > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
-    // A patch's fine vertices lie in a few slabs of the sorted keys: resolve them together,
-    // each search starting where the last one ended (galloping).
-    struct LocalIndex {
-        std::vector<Ref> refs;
-        std::vector<std::uint32_t> index;
-        void build(const Patch& p, const std::vector<Ref>& keys, std::size_t base)
-        {
-            refs.clear();
-            for (const auto& tri : p.triangles)
-                for (Ref r : tri)
-                    if ((r & kKindMask) == kFineRef) refs.push_back(r);
-            std::sort(refs.begin(), refs.end());
-            refs.erase(std::unique(refs.begin(), refs.end()), refs.end());
-            index.resize(refs.size());
-            auto it = keys.begin();
-            for (std::size_t i = 0; i < refs.size(); ++i) {
-                std::size_t step = 1;
-                auto hi = it;
-                while (hi != keys.end() && *hi < refs[i]) {
-                    it = hi;
-                    hi = std::size_t(keys.end() - hi) > step ? hi + std::ptrdiff_t(step) : keys.end();
-                    step *= 2;
-                }
-                it = std::lower_bound(it, hi, refs[i]);
-                index[i] = std::uint32_t(base + std::size_t(it - keys.begin()));
-            }
-        }
-        std::uint32_t find(Ref r) const
-        {
-            return index[std::size_t(std::lower_bound(refs.begin(), refs.end(), r) - refs.begin())];
-        }
-    };
-    tbb::enumerable_thread_specific<LocalIndex> localIndex;
-    auto indexOf = [&](Ref r, std::size_t chunk, const LocalIndex& local) -> std::uint32_t {
+    auto indexOf = [&](Ref r, std::size_t chunk) -> std::uint32_t {
         switch (r & kKindMask) {
-        case kFineRef: return local.find(r);
+        case kFineRef: return std::uint32_t(fineBase + fineIndex[crossingOffset[chunk] + std::size_t(r)]);
         case kCoarseRef:
             return remap[coarseVertex[std::size_t(std::lower_bound(coarse.begin(), coarse.end(), r) - coarse.begin())]];
         default: return std::uint32_t(centreBase + centreOffset[chunk] + std::size_t(r & ~kKindMask));
@@ -934,17 +937,15 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     }
     forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
         const Patch& p = patches[c];
-        LocalIndex& local = localIndex.local();
-        local.build(p, fineKeys, fineBase);
         openvdb::Vec3I* out = mesh.triangles.data() + triangleOffset[c];
         for (const auto& tri : p.triangles) {
-            const std::uint32_t a = indexOf(tri[0], c, local), b = indexOf(tri[1], c, local), d = indexOf(tri[2], c, local);
+            const std::uint32_t a = indexOf(tri[0], c), b = indexOf(tri[1], c), d = indexOf(tri[2], c);
             *out++ = flip ? openvdb::Vec3I(a, d, b) : openvdb::Vec3I(a, b, d);
         }
         for (std::size_t l = 0; l < p.memberEnds.size(); ++l) {
             const std::uint32_t begin = l == 0 ? 0 : p.memberEnds[l - 1], end = p.memberEnds[l];
             Vec3d sum(0.0);
-            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j], c, local)]);
+            for (std::uint32_t j = begin; j < end; ++j) sum += Vec3d(mesh.positions[indexOf(p.members[j], c)]);
             mesh.positions[centreBase + centreOffset[c] + l] = openvdb::Vec3s(sum / double(end - begin));
         }
     });
