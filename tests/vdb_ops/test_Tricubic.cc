@@ -147,3 +147,52 @@ TEST_CASE("Tricubic: neighbours agree bitwise on shared faces and edges and read
     for (int q = 0; q <= m; ++q)
         for (int r = 0; r <= m; ++r) CHECK(lower[idx(m, q, r)] == before[idx(m, q, r)]);
 }
+
+TEST_CASE("Tricubic: cubicRange holds the interpolant and is the Bernstein hull", "[tricubic][bound]")
+{
+    // Truth: the polynomial itself on a 41^3 lattice of the cell (the tricubic reproduces it).
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int trial = 0; trial < 20; ++trial) {
+        Tricubic p;
+        for (auto& plane : p.a)
+            for (auto& row : plane)
+                for (double& v : row) v = u(rng);
+        const std::array<double, 64> s = stencilOf(p);
+        const auto [lo, hi] = isouq::tricubicRange(s.data());
+        double least = 1e300, greatest = -1e300;
+        for (int i = 0; i <= 40; ++i)
+            for (int j = 0; j <= 40; ++j)
+                for (int l = 0; l <= 40; ++l) {
+                    const double v = p(i / 40.0, j / 40.0, l / 40.0);
+                    least = std::min(least, v);
+                    greatest = std::max(greatest, v);
+                }
+        CHECK(lo <= least + 1e-12);
+        CHECK(hi >= greatest - 1e-12);
+        // The face x = 0 (stencil a = 1, free y and z) and the edge x = y = 0 (free z).
+        const std::ptrdiff_t face[2] = {4, 1}, edge[1] = {1};
+        const auto [flo, fhi] = isouq::cubicRange(s.data() + 16, face, 2);
+        const auto [elo, ehi] = isouq::cubicRange(s.data() + 16 + 4, edge, 1);
+        for (int j = 0; j <= 40; ++j)
+            for (int l = 0; l <= 40; ++l) {
+                CHECK(p(0, j / 40.0, l / 40.0) >= flo - 1e-12);
+                CHECK(p(0, j / 40.0, l / 40.0) <= fhi + 1e-12);
+            }
+        for (int l = 0; l <= 40; ++l) {
+            CHECK(p(0, 0, l / 40.0) >= elo - 1e-12);
+            CHECK(p(0, 0, l / 40.0) <= ehi + 1e-12);
+        }
+    }
+    // Closed forms: x has Bernstein coefficients 0, 1/3, 2/3, 1 (range [0, 1], attained);
+    // 4 x (1 - x) has 0, 4/3, 4/3, 0 (its hull reaches 4/3 above its maximum 1).
+    Tricubic linear{}, bump{};
+    linear.a[1][0][0] = 1;
+    bump.a[1][0][0] = 4;
+    bump.a[2][0][0] = -4;
+    const std::array<double, 64> sl = stencilOf(linear), sb = stencilOf(bump);
+    CHECK(isouq::tricubicRange(sl.data()).first == Approx(0.0).margin(1e-15));
+    CHECK(isouq::tricubicRange(sl.data()).second == Approx(1.0).epsilon(1e-15));
+    CHECK(isouq::tricubicRange(sb.data()).first == Approx(0.0).margin(1e-15));
+    CHECK(isouq::tricubicRange(sb.data()).second == Approx(4.0 / 3.0).epsilon(1e-15));
+}

@@ -272,10 +272,18 @@ bool reveals(const std::vector<double>& sub, int m, double k)
     return false;
 }
 
+/// Whether the Bernstein hull [lo, hi] (cubicRange, Tricubic.h) lets the interpolant reach both
+/// sides of k; the slack covers rounding, so a false answer is exact.
+inline bool mayCross(const std::pair<double, double>& range, double k)
+{
+    const double slack = 1e-9 * (std::abs(range.first) + std::abs(range.second) + std::abs(k));
+    return range.first - slack < k && range.second + slack >= k;
+}
+
 /// reveals() for a cell whose corners straddle k (the cell itself then hides nothing), without
 /// refining all of it: each edge and face whose corners lie on one side is evaluated only when
-/// the Lebesgue bound of its grid line (1.25) or plane (1.25^2) lets the tricubic reach k. The
-/// values are refineCell's (Tricubic.h), so the answer is reveals()'.
+/// the Bernstein hull of its grid line or plane reaches k. The values are refineCell's
+/// (Tricubic.h), so the answer is reveals()'.
 bool boundaryReveals(const float* stencil, const std::vector<CubicWeights>& w, int m, double k)
 {
     for (int sx = 0; sx < 3; ++sx)
@@ -292,24 +300,19 @@ bool boundaryReveals(const float* stencil, const std::vector<CubicWeights>& w, i
                     local[a][1] = s[a] == 0 ? 0 : m;
                 }
                 int corners = 0, inside = 0;
-                float lo = std::numeric_limits<float>::max(), hi = -lo;
-                for (int a = node[0][0]; a <= node[0][1]; ++a)
-                    for (int b = node[1][0]; b <= node[1][1]; ++b)
-                        for (int c = node[2][0]; c <= node[2][1]; ++c) {
-                            const float v = stencil[16 * a + 4 * b + c];
-                            lo = std::min(lo, v);
-                            hi = std::max(hi, v);
-                            const bool corner = (s[0] == 2 ? a == 1 || a == 2 : true) &&
-                                                (s[1] == 2 ? b == 1 || b == 2 : true) &&
-                                                (s[2] == 2 ? c == 1 || c == 2 : true);
-                            if (corner) {
-                                ++corners;
-                                inside += double(v) >= k;
-                            }
+                for (int a = local[0][0]; a <= local[0][1]; a += m)
+                    for (int b = local[1][0]; b <= local[1][1]; b += m)
+                        for (int c = local[2][0]; c <= local[2][1]; c += m) {
+                            ++corners;
+                            inside += double(stencil[16 * (1 + a / m) + 4 * (1 + b / m) + 1 + c / m]) >= k;
                         }
                 if (inside != 0 && inside != corners) continue;
-                const double lebesgue = free == 1 ? 1.25 : 1.5625;
-                if (std::abs(k - 0.5 * (double(lo) + double(hi))) > lebesgue * 0.5 * (double(hi) - double(lo))) continue;
+                std::ptrdiff_t strides[2];
+                int dims = 0;
+                for (int a = 0; a < 3; ++a)
+                    if (s[a] == 2) strides[dims++] = a == 0 ? 16 : a == 1 ? 4 : 1;
+                if (!mayCross(cubicRange(stencil + 16 * node[0][0] + 4 * node[1][0] + node[2][0], strides, dims), k))
+                    continue;
                 const bool cornersInside = inside != 0;
                 for (int p = local[0][0]; p <= local[0][1]; ++p)
                     for (int q = local[1][0]; q <= local[1][1]; ++q)
@@ -728,6 +731,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                     if (hidden.filter && straddles) {
                         if (!boundaryReveals(stencil, scratch.weights, m, k)) continue;
                     } else if (!straddles) {
+                        if (!mayCross(tricubicRange(stencil), double(k))) continue;
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
                         if (!crosses(scratch.sub, k)) continue;
                         if (hidden.filter && !reveals(scratch.sub, m, k)) continue;

@@ -10,8 +10,10 @@
 // neighbours agree bitwise on their shared face (SPEC §4 "useful property").
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
+#include <utility>
 #include <vector>
 
 namespace isouq {
@@ -48,7 +50,53 @@ inline double contract(const CubicWeights& c, const T* v, std::ptrdiff_t stride)
     return sum;
 }
 
+/// In place: the values of the Lagrange cubic at -1, 0, 1, 2 (stride @a s) become its Bernstein
+/// coefficients on [0, 1]: b0 = f(0), b1 = f(0) + f'(0) / 3, b2 = f(1) - f'(1) / 3, b3 = f(1).
+inline void toBernstein(double* v, std::ptrdiff_t s)
+{
+    const double v0 = v[0], v1 = v[s], v2 = v[2 * s], v3 = v[3 * s];
+    v[0] = v1;
+    constexpr double kNinth = 1.0 / 9.0, kSixth5 = 5.0 / 6.0, kThird = 1.0 / 3.0, kEighteenth = 1.0 / 18.0;
+    v[s] = kSixth5 * v1 + kThird * v2 - kNinth * v0 - kEighteenth * v3;
+    v[2 * s] = kThird * v1 + kSixth5 * v2 - kEighteenth * v0 - kNinth * v3;
+    v[3 * s] = v2;
+}
+
 } // namespace tricubic_internal
+
+/// Bounds [lo, hi] of the tensor-product Lagrange cubic over its cell [0, 1]^dims (dims 1, 2 or
+/// 3; 4^dims values at base[a * strides[0] + b * strides[1] + c * strides[2]]): the least and
+/// greatest Bernstein coefficient (the polynomial lies in their convex hull). Exact but for
+/// rounding; used to skip cells, faces and edges the interpolant cannot take across k.
+template <typename T>
+std::pair<double, double> cubicRange(const T* base, const std::ptrdiff_t* strides, int dims)
+{
+    double c[64];
+    const int n0 = 4, n1 = dims > 1 ? 4 : 1, n2 = dims > 2 ? 4 : 1;
+    int i = 0;
+    for (int a = 0; a < n0; ++a)
+        for (int b = 0; b < n1; ++b)
+            for (int d = 0; d < n2; ++d)
+                c[i++] = double(base[a * strides[0] + (dims > 1 ? b * strides[1] : 0) + (dims > 2 ? d * strides[2] : 0)]);
+    const int step[3] = {n1 * n2, n2, 1};
+    for (int axis = 0; axis < dims; ++axis)
+        for (int block = 0; block < i; block += 4 * step[axis])
+            for (int j = block; j < block + step[axis]; ++j) tricubic_internal::toBernstein(c + j, step[axis]);
+    double lo = c[0], hi = c[0];
+    for (int j = 1; j < i; ++j) {
+        lo = std::min(lo, c[j]);
+        hi = std::max(hi, c[j]);
+    }
+    return {lo, hi};
+}
+
+/// cubicRange of the tricubic on a stencil (tricubic()'s layout).
+template <typename T>
+std::pair<double, double> tricubicRange(const T* stencil)
+{
+    const std::ptrdiff_t strides[3] = {16, 4, 1};
+    return cubicRange(stencil, strides, 3);
+}
 
 /// The tricubic at one point. @a stencil holds f(i-1+a, j-1+b, k-1+c) at index 16a + 4b + c for
 /// the cell between voxels ijk and ijk+1; the weights give the point's local coordinates.
