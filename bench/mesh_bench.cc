@@ -36,15 +36,27 @@
 
 namespace {
 
-/// isouq's linear pass (positions only), isouq's full pass (every method, estimate and
-/// difference per vertex, issue 3), or OpenVDB's volumeToMesh.
-enum class Algo { Isouq, IsouqFull, VolumeToMesh };
+/// isouq's linear pass (positions only), its estimate pass (linear crossings with the paper's
+/// e and e_b: "extraction plus estimate"), its full pass (every method, estimate and difference
+/// per vertex, issue 3), or OpenVDB's volumeToMesh.
+enum class Algo { Isouq, IsouqEstimate, IsouqFull, VolumeToMesh };
 
-const char* algoName(Algo a) { return a == Algo::Isouq ? "isouq" : a == Algo::IsouqFull ? "isouq-full" : "vtm"; }
+const char* algoName(Algo a)
+{
+    switch (a) {
+    case Algo::Isouq: return "linear";
+    case Algo::IsouqEstimate: return "estimate";
+    case Algo::IsouqFull: return "full";
+    case Algo::VolumeToMesh: break;
+    }
+    return "vtm";
+}
 
 Algo algoFromName(const std::string& s)
 {
-    return s == "isouq" ? Algo::Isouq : s == "isouq-full" ? Algo::IsouqFull : Algo::VolumeToMesh;
+    for (Algo a : {Algo::Isouq, Algo::IsouqEstimate, Algo::IsouqFull})
+        if (s == algoName(a)) return a;
+    return Algo::VolumeToMesh;
 }
 
 struct CallResult {
@@ -98,7 +110,8 @@ CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue)
     if (algo != Algo::VolumeToMesh) {
         isouq::MeshSettings settings;
         settings.isovalue = isovalue;
-        settings.uncertainty = algo == Algo::IsouqFull;
+        settings.uncertainty = algo != Algo::Isouq;
+        settings.highOrder = algo == Algo::IsouqFull;
         const isouq::Mesh mesh = isouq::extractIsosurface(grid, settings);
         r.triangles = mesh.triangles.size();
         r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
@@ -216,7 +229,7 @@ struct Options {
     int repeats = 7;
     int memoryRuns = 3;
     std::string dataDir = ISOUQ_DATA_DIR;
-    Algo isouqPass = Algo::Isouq; // --pass linear|full
+    Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -241,14 +254,17 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--repeats") o.repeats = std::stoi(next());
         else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
         else if (arg == "--data") o.dataDir = next();
-        else if (arg == "--pass") o.isouqPass = next() == "full" ? Algo::IsouqFull : Algo::Isouq;
+        else if (arg == "--pass") {
+            o.isouqPass = algoFromName(next());
+            if (o.isouqPass == Algo::VolumeToMesh) throw std::runtime_error("--pass takes linear, estimate or full");
+        }
         else if (arg == "--threads") {
             o.threads.clear();
             for (const std::string& t : splitCommas(next())) o.threads.push_back(t == "default" ? 0 : std::stoi(t));
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|full]");
+                                     "[--pass linear|estimate|full]");
         }
     }
     return o;
@@ -304,7 +320,7 @@ int main(int argc, char** argv)
         const Options o = parseOptions(argc, argv);
         std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
                     "fresh processes.\n\n",
-            o.isouqPass == Algo::IsouqFull ? "full (every method, estimate and difference)" : "linear (positions)",
+            algoName(o.isouqPass),
             loadAverage().c_str(), o.repeats, o.memoryRuns);
         std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
                     "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "

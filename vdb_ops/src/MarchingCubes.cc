@@ -21,6 +21,10 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -37,6 +41,22 @@ constexpr int kWords = 3 * 512 / 64; // one bit per (voxel, axis) owned by a blo
 inline int voxelOffset(int x, int y, int z) { return (x << 6) | (y << 3) | z; }
 
 enum RegionSide : std::uint8_t { kAllOutside = 0, kAllInside = 1, kMixed = 2 };
+
+/// Bit z set when v[z] >= k, for z < n <= 8 (a whole leaf row at once with SSE2).
+inline std::uint32_t insideBits(const float* v, int n, float k)
+{
+#ifdef __SSE2__
+    if (n == kBlockDim) {
+        const __m128 kk = _mm_set1_ps(k);
+        const int lo = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v), kk));
+        const int hi = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v + 4), kk));
+        return std::uint32_t(lo | hi << 4);
+    }
+#endif
+    std::uint32_t bits = 0;
+    for (int z = 0; z < n; ++z) bits |= std::uint32_t(v[z] >= k) << z;
+    return bits;
+}
 
 /// Which edges of a block carry a vertex: bit 3 * voxelOffset + axis. Kept from the count pass
 /// to the fill pass for non-empty blocks only (most blocks of a narrow band are empty).
@@ -198,13 +218,17 @@ private:
 
     void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
     {
-        const int hi = mLo + mWidth;
-        const int x0 = std::max(mLo, bx * kBlockDim), x1 = std::min(hi, (bx + 1) * kBlockDim);
-        const int y0 = std::max(mLo, by * kBlockDim), y1 = std::min(hi, (by + 1) * kBlockDim);
-        const int z0 = std::max(mLo, bz * kBlockDim), z1 = std::min(hi, (bz + 1) * kBlockDim);
+        // Locals, not members, in the loops: stores to the uint32 rows could alias the ints.
+        const int lo = mLo, width = mWidth, hi = lo + width;
+        const int x0 = std::max(lo, bx * kBlockDim), x1 = std::min(hi, (bx + 1) * kBlockDim);
+        const int y0 = std::max(lo, by * kBlockDim), y1 = std::min(hi, (by + 1) * kBlockDim);
+        const int z0 = std::max(lo, bz * kBlockDim), z1 = std::min(hi, (bz + 1) * kBlockDim);
         if (x0 >= x1 || y0 >= y1 || z0 >= z1) return;
-        const int zCount = z1 - z0, zShift = z0 - mLo;
+        const int zCount = z1 - z0, zShift = z0 - lo;
         const std::uint32_t zRun = (1u << zCount) - 1u;
+        float* values = mValues.data();
+        std::uint32_t* insideRows = mInsideRows.data();
+        std::uint32_t* activeRows = mActiveRows.data();
         const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
         if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
             const float* buffer = leaf->buffer().data();
@@ -212,18 +236,17 @@ private:
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
-                    float* dst = &mValues[index(x, y, z0)];
-                    std::uint32_t inside = 0;
-                    for (int z = 0; z < zCount; ++z) {
-                        dst[z] = buffer[src + z];
-                        inside |= std::uint32_t(buffer[src + z] >= isovalue) << z;
-                    }
+                    const int row = (x - lo) * width + (y - lo);
+                    float* dst = values + row * width + zShift;
+                    std::copy_n(buffer + src, zCount, dst);
+                    // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
+                    const bool cellRow = x >= -1 && x <= kBlockDim && y >= -1 && y <= kBlockDim;
+                    const std::uint32_t inside = cellRow ? insideBits(dst, zCount, isovalue) : 0u;
                     // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
                     const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
                     const std::uint32_t active = std::uint32_t(word >> (src & 63)) & zRun;
-                    const int row = (x - mLo) * mWidth + (y - mLo);
-                    mInsideRows[row] |= inside << zShift;
-                    mActiveRows[row] |= active << zShift;
+                    insideRows[row] |= inside << zShift;
+                    activeRows[row] |= active << zShift;
                 }
         } else {
             float tileValue;
@@ -232,10 +255,10 @@ private:
             const std::uint32_t active = tileActive ? zRun << zShift : 0u;
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
-                    std::fill_n(&mValues[index(x, y, z0)], zCount, tileValue);
-                    const int row = (x - mLo) * mWidth + (y - mLo);
-                    mInsideRows[row] |= inside;
-                    mActiveRows[row] |= active;
+                    const int row = (x - lo) * width + (y - lo);
+                    std::fill_n(values + row * width + zShift, zCount, tileValue);
+                    insideRows[row] |= inside;
+                    activeRows[row] |= active;
                 }
         }
     }

@@ -72,12 +72,13 @@ struct VertexColumns {
             c.tLinear = addFloat("t_linear");
         }
         if (!settings.uncertainty) return c;
+        c.errEst = addFloat("err_est");
+        c.errBound = addFloat("err_bound");
+        if (!settings.highOrder) return c;
         c.tCubic = addFloat("t_cubic");
         c.tWeno = addFloat("t_weno");
         if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat("t_weno_paper");
         c.order = a.add<std::uint8_t>("order", n).data();
-        c.errEst = addFloat("err_est");
-        c.errBound = addFloat("err_bound");
         c.errBest = addFloat("err_best");
         c.errBestSurface = addFloat("err_best_surface");
         c.errEstCubic = addFloat("err_est_cubic");
@@ -100,6 +101,56 @@ struct VertexContext {
     EdgeMethod method;
     bool uncertainty;
 };
+
+/// Every method's crossing, the primary method's crossing @a t and order, the method
+/// differences and the estimates beyond the paper, for vertex @a n (SPEC §2, §6;
+/// docs/error-estimates.md).
+template <typename ScratchT>
+void writeHighOrder(const ScratchT& s, int x, int y, int z, int axis, std::size_t n,
+    const std::array<float, 6>& f, std::uint8_t available, float tLinear, const VertexContext& ctx,
+    const VertexColumns& out, float& t)
+{
+    const int dx = axis == 0, dy = axis == 1, dz = axis == 2;
+    const float k = ctx.isovalue, h = float(ctx.spacing[axis]);
+    const EdgeCrossing cubic = CubicEdge::crossing(f, available, k);
+    const EdgeCrossing weno = WenoEdge::crossing(f, available, k);
+    EdgeCrossing primary{tLinear, 2};
+    switch (ctx.method) {
+    case EdgeMethod::Linear: break;
+    case EdgeMethod::Cubic: primary = cubic; break;
+    case EdgeMethod::Weno: primary = weno; break;
+    case EdgeMethod::WenoPaper:
+        primary = WenoPaperEdge::crossing(f, available, k);
+        out.tWenoPaper[n] = primary.t;
+        break;
+    }
+    t = primary.t;
+    out.tCubic[n] = cubic.t;
+    out.tWeno[n] = weno.t;
+    out.order[n] = primary.order;
+    const CrossingSpread spread = crossingSpread(tLinear, cubic.t, weno.t, h);
+    out.dLc[n] = spread.dLc;
+    out.dLw[n] = spread.dLw;
+    out.dCw[n] = spread.dCw;
+    out.maxVar[n] = spread.maxVar;
+    // Beyond the paper: the linear error estimated by the next higher order's crossing, and its
+    // distance to the surface through the angle between the edge and the gradient (central
+    // differences at both ends, interpolated at t).
+    out.errBest[n] = spread.dLc;
+    openvdb::Vec3d gradient(0.0);
+    for (int end = 0; end < 2; ++end) {
+        const int ex = x + end * dx, ey = y + end * dy, ez = z + end * dz;
+        const openvdb::Vec3d g((s.value(ex + 1, ey, ez) - s.value(ex - 1, ey, ez)) / ctx.spacing[0],
+            (s.value(ex, ey + 1, ez) - s.value(ex, ey - 1, ez)) / ctx.spacing[1],
+            (s.value(ex, ey, ez + 1) - s.value(ex, ey, ez - 1)) / ctx.spacing[2]);
+        gradient += g * (end == 0 ? 1.0 - tLinear : double(tLinear));
+    }
+    const float cosine = edgeNormalCosine(float(gradient[axis]), float(gradient[0]), float(gradient[1]),
+        float(gradient[2]));
+    out.errBestSurface[n] = surfaceDistance(spread.dLc, cosine);
+    out.errEstCubic[n] = cubicErrorEstimate(f, available, cubic.t, h);
+    out.errEstWeno[n] = wenoErrorEstimate(f, available, weno.t, h);
+}
 
 /// Computes and writes vertex @a n on the edge from voxel (x, y, z) of the block at @a origin
 /// along @a axis. @a s gives values (and active states) up to three voxels around the block.
@@ -132,48 +183,10 @@ void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, 
             const bool usable = ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz);
             if ((inData && usable) || j == 2 || j == 3) available |= std::uint8_t(1u << j);
         }
-        const float k = ctx.isovalue, h = float(ctx.spacing[axis]);
-        const EdgeCrossing cubic = CubicEdge::crossing(f, available, k);
-        const EdgeCrossing weno = WenoEdge::crossing(f, available, k);
-        EdgeCrossing primary{tLinear, 2};
-        switch (ctx.method) {
-        case EdgeMethod::Linear: break;
-        case EdgeMethod::Cubic: primary = cubic; break;
-        case EdgeMethod::Weno: primary = weno; break;
-        case EdgeMethod::WenoPaper:
-            primary = WenoPaperEdge::crossing(f, available, k);
-            out.tWenoPaper[n] = primary.t;
-            break;
-        }
-        t = primary.t;
-        out.tCubic[n] = cubic.t;
-        out.tWeno[n] = weno.t;
-        out.order[n] = primary.order;
-        const LinearError linear = linearError(f, available, tLinear, h);
+        const LinearError linear = linearError(f, available, tLinear, float(ctx.spacing[axis]));
         out.errEst[n] = linear.estimate;
         out.errBound[n] = linear.bound;
-        const CrossingSpread spread = crossingSpread(tLinear, cubic.t, weno.t, h);
-        out.dLc[n] = spread.dLc;
-        out.dLw[n] = spread.dLw;
-        out.dCw[n] = spread.dCw;
-        out.maxVar[n] = spread.maxVar;
-        // Beyond the paper (docs/error-estimates.md): the linear error estimated by the next
-        // higher order's crossing, and its distance to the surface through the angle between
-        // the edge and the gradient (central differences at both ends, interpolated at t).
-        out.errBest[n] = spread.dLc;
-        openvdb::Vec3d gradient(0.0);
-        for (int end = 0; end < 2; ++end) {
-            const int ex = x + end * dx, ey = y + end * dy, ez = z + end * dz;
-            const openvdb::Vec3d g((s.value(ex + 1, ey, ez) - s.value(ex - 1, ey, ez)) / ctx.spacing[0],
-                (s.value(ex, ey + 1, ez) - s.value(ex, ey - 1, ez)) / ctx.spacing[1],
-                (s.value(ex, ey, ez + 1) - s.value(ex, ey, ez - 1)) / ctx.spacing[2]);
-            gradient += g * (end == 0 ? 1.0 - tLinear : double(tLinear));
-        }
-        const float cosine = edgeNormalCosine(float(gradient[axis]), float(gradient[0]),
-            float(gradient[1]), float(gradient[2]));
-        out.errBestSurface[n] = surfaceDistance(spread.dLc, cosine);
-        out.errEstCubic[n] = cubicErrorEstimate(f, available, cubic.t, h);
-        out.errEstWeno[n] = wenoErrorEstimate(f, available, weno.t, h);
+        if (out.tCubic) writeHighOrder(s, x, y, z, axis, n, f, available, tLinear, ctx, out, t);
     }
     openvdb::Vec3d p(ijk[0], ijk[1], ijk[2]);
     p[axis] += double(t);

@@ -42,6 +42,9 @@ struct MeshSettings {
     bool uncertainty = false;
     /// With uncertainty off, still record `edge_i edge_j edge_k edge_axis t_linear`.
     bool provenance = false;
+    /// With uncertainty on: false computes only the linear crossing and the paper's estimates
+    /// (`err_est`, `err_bound`; the paper's "extraction plus estimate"), no cubic or WENO.
+    bool highOrder = true;
     /// The method whose crossing gives the positions when uncertainty is on.
     EdgeMethod method = EdgeMethod::Weno;
     StencilPolicy stencil = StencilPolicy::TreeValues;
