@@ -389,3 +389,19 @@ TEST_CASE("MarchingCubes: bricks joined by source edge equal the whole mesh (SPE
     CHECK(wholePositions == brickPositions);
     CHECK(wholeErrors == brickErrors);
 }
+
+TEST_CASE("MarchingCubes: the estimate-only pass gives the full pass's e and e_b", "[mc][estimate]")
+{
+    openvdb::initialize();
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(1.0f, {0.0f, 0.0f, 0.0f}, 0.04f);
+    MeshSettings full;
+    full.uncertainty = true;
+    full.method = EdgeMethod::Linear;
+    MeshSettings estimate = full;
+    estimate.highOrder = false;
+    const Mesh a = extractIsosurface(*grid, full), b = extractIsosurface(*grid, estimate);
+    REQUIRE(a.positions == b.positions);
+    CHECK(b.vertexAttributes.find<float>("t_cubic") == nullptr);
+    CHECK(*a.vertexAttributes.find<float>("err_est") == *b.vertexAttributes.find<float>("err_est"));
+    CHECK(*a.vertexAttributes.find<float>("err_bound") == *b.vertexAttributes.find<float>("err_bound"));
+}
