@@ -405,3 +405,29 @@ TEST_CASE("MarchingCubes: the estimate-only pass gives the full pass's e and e_b
     CHECK(*a.vertexAttributes.find<float>("err_est") == *b.vertexAttributes.find<float>("err_est"));
     CHECK(*a.vertexAttributes.find<float>("err_bound") == *b.vertexAttributes.find<float>("err_bound"));
 }
+
+TEST_CASE("MarchingCubes: a NaN stencil voxel outside the active set makes the methods fall back", "[mc][nan]")
+{
+    openvdb::initialize();
+    // A linear ramp along x (crossing between x = 5 and 6) whose voxel x = 3 is an inactive NaN:
+    // the WENO stencil i-2..i+3 of the crossing edge reads it, so WENO falls back to a lower
+    // order but stays exact on the ramp; nothing becomes NaN.
+    const int n = 12;
+    auto grid = denseGrid(n, n, n, [](int i, int, int) { return double(i) - 5.5; });
+    auto acc = grid->getAccessor();
+    for (int j = 0; j < n; ++j)
+        for (int k = 0; k < n; ++k) acc.setValueOff(Coord(3, j, k), std::nanf(""));
+    MeshSettings settings;
+    settings.uncertainty = true;
+    const Mesh mesh = extractIsosurface(*grid, settings);
+    const auto& order = *mesh.vertexAttributes.find<std::uint8_t>("order");
+    const auto& tWeno = *mesh.vertexAttributes.find<float>("t_weno");
+    const auto& axis = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
+    REQUIRE(!mesh.positions.empty());
+    for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
+        CHECK(std::isfinite(mesh.positions[v][0]));
+        CHECK(axis[v] == 0);
+        CHECK(order[v] < 6);
+        CHECK(tWeno[v] == Approx(0.5f).margin(1e-6));
+    }
+}

@@ -10,6 +10,7 @@
 #include <openvdb/math/Transform.h>
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <optional>
 
@@ -172,15 +173,17 @@ void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, 
         out.tLinear[n] = tLinear;
     }
     if (ctx.uncertainty) {
-        // Stencil f_{i-2..i+3} along the edge; a voxel outside the data, or inactive under the
-        // ActiveOnly policy, is missing and the methods fall back (SPEC §1, §2).
+        // Stencil f_{i-2..i+3} along the edge; a voxel outside the data, inactive under the
+        // ActiveOnly policy, or not finite (an inactive NaN the input checks do not see) is
+        // missing and the methods fall back (SPEC §1, §2).
         std::array<float, 6> f{};
         std::uint8_t available = 0;
         for (int j = 0; j < 6; ++j) {
             const int o = j - 2;
             f[j] = s.value(x + o * dx, y + o * dy, z + o * dz);
             const bool inData = !ctx.bounds || ctx.bounds->isInside(ijk.offsetBy(o * dx, o * dy, o * dz));
-            const bool usable = ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz);
+            const bool usable = std::isfinite(f[j]) &&
+                (ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz));
             if ((inData && usable) || j == 2 || j == 3) available |= std::uint8_t(1u << j);
         }
         const LinearError linear = linearError(f, available, tLinear, float(ctx.spacing[axis]));
