@@ -168,6 +168,31 @@ public:
         for (int bx = -1; bx <= 1; ++bx)
             for (int by = -1; by <= 1; ++by)
                 for (int bz = -1; bz <= 1; ++bz) gatherBlock(acc, origin, bx, by, bz);
+        slopeRows();
+    }
+    /// Bits z of the block's cells (x, y, 0..7) that the slope rule flags (SPEC §4): a cell turns
+    /// when one of its 12 edges does, and an edge when its three slopes rise and fall.
+    std::uint32_t turningCells(int x, int y) const
+    {
+        auto edges = [this](int axis, int ex, int ey) { // bits z of the edges (ex, ey, z) that turn
+            std::uint32_t rise, fall;
+            if (axis == 2) {
+                const std::uint32_t r = mRise[2][ex + 1][ey + 1], f = mFall[2][ex + 1][ey + 1];
+                rise = r | r >> 1 | r >> 2; // slopes z - 1, z, z + 1 at bits z, z + 1, z + 2
+                fall = f | f >> 1 | f >> 2;
+            } else {
+                const int dx = axis == 0, dy = axis == 1;
+                rise = fall = 0;
+                for (int s = -1; s <= 1; ++s) {
+                    rise |= mRise[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
+                    fall |= mFall[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
+                }
+            }
+            return rise & fall;
+        };
+        const std::uint32_t alongZ = edges(2, x, y) | edges(2, x + 1, y) | edges(2, x, y + 1) | edges(2, x + 1, y + 1);
+        const std::uint32_t across = edges(0, x, y) | edges(0, x, y + 1) | edges(1, x, y) | edges(1, x + 1, y);
+        return (alongZ | across | across >> 1) & 0xffu;
     }
     float value(int x, int y, int z) const { return mValue[index(x, y, z)]; }
     bool active(int x, int y, int z) const { return mActive[index(x, y, z)]; }
@@ -210,22 +235,28 @@ private:
                 }
     }
 
+    /// Sign rows of the slopes f(v + e_axis) - f(v): [axis][x + 1][y + 1], bit z + 1, for v in
+    /// [-1, 9)^3 (z slopes: bit z + 1 of row (x, y) compares z + 1 with z).
+    void slopeRows()
+    {
+        for (int axis = 0; axis < 3; ++axis)
+            for (int x = -1; x < 9; ++x)
+                for (int y = -1; y < 9; ++y) {
+                    std::uint32_t rise = 0, fall = 0;
+                    for (int z = -1; z < 9; ++z) {
+                        const float d = value(x + (axis == 0), y + (axis == 1), z + (axis == 2)) - value(x, y, z);
+                        rise |= std::uint32_t(d > 0) << (z + 1);
+                        fall |= std::uint32_t(d < 0) << (z + 1);
+                    }
+                    mRise[axis][x + 1][y + 1] = rise;
+                    mFall[axis][x + 1][y + 1] = fall;
+                }
+    }
+
     std::array<float, kWidth * kWidth * kWidth> mValue{};
     std::array<bool, kWidth * kWidth * kWidth> mActive{};
+    std::uint32_t mRise[3][10][10], mFall[3][10][10];
 };
-
-/// The slope rule (SPEC §4) on the 12 edges of the cell at (x, y, z) of the window.
-bool cellTurns(const Window& w, int x, int y, int z)
-{
-    for (const McEdge& e : kMcEdges) {
-        const int ex = e.axis == 0, ey = e.axis == 1, ez = e.axis == 2;
-        const int vx = x + e.dx, vy = y + e.dy, vz = z + e.dz;
-        if (slopesTurn(w.value(vx - ex, vy - ey, vz - ez), w.value(vx, vy, vz),
-                w.value(vx + ex, vy + ey, vz + ez), w.value(vx + 2 * ex, vy + 2 * ey, vz + 2 * ez)))
-            return true;
-    }
-    return false;
-}
 
 /// Index of sub-point (p, q, r) in refineCell's output.
 inline std::size_t subIndex(int p, int q, int r, int n) { return std::size_t((p * n + q) * n + r); }
@@ -700,7 +731,8 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         BlockResult& out = blockResults[b];
         float stencil[64];
         for (int x = 0; x < kBlock; ++x)
-            for (int y = 0; y < kBlock; ++y)
+            for (int y = 0; y < kBlock; ++y) {
+                const std::uint32_t turning = w.turningCells(x, y);
                 for (int z = 0; z < kBlock; ++z) {
                     const Coord cell = origin.offsetBy(x, y, z);
                     if (bounds && !(bounds->isInside(cell) && bounds->isInside(cell.offsetBy(1)))) continue;
@@ -710,7 +742,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                     // are never flagged.
                     if (bounds && !(bounds->isInside(cell.offsetBy(-1)) && bounds->isInside(cell.offsetBy(2))))
                         continue;
-                    if (!cellTurns(w, x, y, z)) continue;
+                    if (!((turning >> z) & 1u)) continue;
                     ++out.flagged;
                     float lo = std::numeric_limits<float>::max(), hi = -lo;
                     for (int a = 0; a < 4; ++a)
@@ -746,6 +778,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                                     neighboursMeshed = w.meshed(x + dx, y + dy, z + dz);
                     if (neighboursMeshed) out.refined.push_back(cell);
                 }
+            }
     });
     HiddenFeatureStats stats;
     std::vector<Coord> refined;
