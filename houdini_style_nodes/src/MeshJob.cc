@@ -9,7 +9,9 @@
 
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <chrono>
+#include <filesystem>
 #include <memory>
 #include <sstream>
 
@@ -42,6 +44,16 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     checkWritable(job.output);
     if (!job.summaryPath.empty()) checkWritable(job.summaryPath);
     if (!job.hiddenOutput.empty()) checkWritable(job.hiddenOutput);
+    {
+        std::vector<std::filesystem::path> paths;
+        for (const std::string& p : {job.output, job.summaryPath, job.hiddenOutput}) {
+            if (p.empty()) continue;
+            const std::filesystem::path canonical = std::filesystem::weakly_canonical(p);
+            if (std::find(paths.begin(), paths.end(), canonical) != paths.end())
+                throw InputError("two outputs go to " + p + "; give each output its own path");
+            paths.push_back(canonical);
+        }
+    }
 
     nlohmann::json timings;
     StageClock clock;
@@ -109,11 +121,15 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     ply.version = ISOUQ_VERSION_STRING;
     ply.isovalue = volume.isovalue;
     ply.method = summary["method"].get<std::string>();
-    writePly(mesh, job.output, ply);
-    if (!job.hiddenOutput.empty()) writePly(hiddenMesh, job.hiddenOutput, ply);
+    // All outputs appear together or not at all.
+    OutputBatch outputs;
+    outputs.addPly(mesh, job.output, ply);
+    if (!job.hiddenOutput.empty()) outputs.addPly(hiddenMesh, job.hiddenOutput, ply);
     clock.lap(timings, "write");
     summary["timings_ms"] = timings;
-    if (!job.summaryPath.empty()) writeTextFileAtomic(job.summaryPath, summary.dump(2) + "\n");
+    if (!job.summaryPath.empty()) outputs.addText(job.summaryPath, summary.dump(2) + "\n");
+    throwIfInterrupted(interrupter);
+    outputs.commit();
     return summary;
 }
 

@@ -509,3 +509,33 @@ TEST_CASE("MeshIO: writing and reading ten million triangles", "[io][ply][slow]"
     CHECK(sameColumns(r.vertexAttributes, m.vertexAttributes));
     CHECK(sameColumns(r.faceAttributes, m.faceAttributes));
 }
+
+TEST_CASE("MeshIO: an output batch appears whole or not at all", "[io][atomic]")
+{
+    TempDir dir;
+    isouq::Mesh mesh;
+    mesh.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+    mesh.triangles = {{0, 1, 2}};
+    writeBytes(dir / "a.ply", "old a");
+    SECTION("a failing second output leaves the first untouched and no temporary")
+    {
+        {
+            isouq::OutputBatch batch;
+            batch.addPly(mesh, dir / "a.ply");
+            CHECK_THROWS_AS(batch.addText(dir / "missing/s.json", "{}"), isouq::IoError);
+        }
+        CHECK(readBytes(dir / "a.ply") == "old a");
+        CHECK(dir.list() == std::vector<std::string>{"a.ply"});
+    }
+    SECTION("commit renames every output")
+    {
+        isouq::OutputBatch batch;
+        batch.addPly(mesh, dir / "a.ply");
+        batch.addText(dir / "s.json", "{}\n");
+        CHECK(readBytes(dir / "a.ply") == "old a"); // nothing visible before commit
+        batch.commit();
+        CHECK(readBytes(dir / "s.json") == "{}\n");
+        CHECK(isouq::readPly(dir / "a.ply").triangles.size() == 1);
+        CHECK(dir.list() == std::vector<std::string>{"a.ply", "s.json"});
+    }
+}

@@ -605,17 +605,50 @@ private:
 
 } // namespace meshio_internal
 
-void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& options)
+namespace meshio_internal {
+void writePlyTo(AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
 {
-    using namespace meshio_internal;
-    AtomicFile file(path);
     if (mesh.vertexCount() > std::size_t(INT32_MAX)) file.fail("more vertices than PLY int indices hold");
     checkColumns(file, mesh.vertexAttributes, mesh.vertexCount(), "vertex", {"x", "y", "z"});
     checkColumns(file, mesh.faceAttributes, mesh.triangleCount(), "face", {"vertex_indices"});
     const std::string header = plyHeader(file, mesh, options);
     file.write(header.data(), header.size());
     writeBody(file, mesh);
+}
+} // namespace meshio_internal
+
+void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& options)
+{
+    meshio_internal::AtomicFile file(path);
+    meshio_internal::writePlyTo(file, mesh, options);
     file.commit();
+}
+
+struct OutputBatch::Impl {
+    std::vector<std::unique_ptr<meshio_internal::AtomicFile>> files;
+};
+
+OutputBatch::OutputBatch() : mImpl(std::make_unique<Impl>()) {}
+OutputBatch::~OutputBatch() = default;
+
+void OutputBatch::addPly(const Mesh& mesh, const std::string& path, const PlyOptions& options)
+{
+    auto file = std::make_unique<meshio_internal::AtomicFile>(path);
+    meshio_internal::writePlyTo(*file, mesh, options);
+    mImpl->files.push_back(std::move(file));
+}
+
+void OutputBatch::addText(const std::string& path, const std::string& text)
+{
+    auto file = std::make_unique<meshio_internal::AtomicFile>(path);
+    file->write(text.data(), text.size());
+    mImpl->files.push_back(std::move(file));
+}
+
+void OutputBatch::commit()
+{
+    for (auto& file : mImpl->files) file->commit();
+    mImpl->files.clear();
 }
 
 Mesh readPly(const std::string& path, PlyInfo* info)

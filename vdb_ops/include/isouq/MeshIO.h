@@ -4,6 +4,7 @@
 
 #include "isouq/MeshAttributes.h"
 
+#include <memory>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -59,6 +60,28 @@ Mesh readPly(const std::string& path, PlyInfo* info = nullptr);
 /// and removes a temporary file next to it.
 /// @throw IoError naming the path and the reason.
 void checkWritable(const std::string& path);
+
+/// Several outputs that appear together or not at all (a mesh, its hidden-feature mesh and
+/// the summary): each is written to its temporary file when added, and commit() renames them
+/// all. Destroyed without commit (an error or an interruption), it removes every temporary.
+class OutputBatch {
+public:
+    OutputBatch();
+    ~OutputBatch();
+    OutputBatch(const OutputBatch&) = delete;
+    OutputBatch& operator=(const OutputBatch&) = delete;
+
+    /// @throw IoError as writePly.
+    void addPly(const Mesh& mesh, const std::string& path, const PlyOptions& options = {});
+    /// @throw IoError as writeTextFileAtomic.
+    void addText(const std::string& path, const std::string& text);
+    /// @throw IoError naming the first path that could not be renamed.
+    void commit();
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> mImpl;
+};
 
 /// Writes @a text to @a path atomically (e.g. the `--summary` JSON).
 /// @throw IoError naming the path and the reason.
