@@ -269,10 +269,11 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         }
     }
     throwIfInterrupted(interrupter);
-    for (const PendingWrite& w : writes) {
-        w.commit();
-        result.written.push_back(w.path);
-    }
+    OutputBatch batch;
+    for (const PendingWrite& w : writes) w.stage(batch);
+    throwIfInterrupted(interrupter);
+    batch.commit();
+    for (const PendingWrite& w : writes) result.written.push_back(w.path);
     return result;
 }
 

@@ -13,27 +13,27 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void writeMesh(const MeshData& m, const std::string& path)
+PlyOptions plyOptionsOf(const MeshData& m)
 {
     PlyOptions ply;
     ply.version = ISOUQ_VERSION_STRING;
     ply.isovalue = m.isovalue;
     ply.method = m.method;
-    writePly(m.mesh, path, ply);
+    return ply;
 }
 
 void cookWritePly(CookContext& ctx)
 {
     auto mesh = ctx.input("mesh")->mesh;
     const std::string path = ctx.parms.getString("path");
-    ctx.writes->push_back({path, [mesh, path] { writeMesh(*mesh, path); }});
+    ctx.writes->push_back({path, [mesh, path](OutputBatch& batch) { batch.addPly(mesh->mesh, path, plyOptionsOf(*mesh)); }});
 }
 
 void cookWriteSummary(CookContext& ctx)
 {
     const std::string text = ctx.input("summary")->json.dump(2) + "\n";
     const std::string path = ctx.parms.getString("path");
-    ctx.writes->push_back({path, [text, path] { writeTextFileAtomic(path, text); }});
+    ctx.writes->push_back({path, [text, path](OutputBatch& batch) { batch.addText(path, text); }});
 }
 
 std::string envOr(const char* name, const std::string& fallback)
@@ -58,7 +58,7 @@ void writeReport(const MeshData& m, const nlohmann::json& summary, const std::st
         fs::path p;
         ~Cleanup() { std::error_code ec; fs::remove_all(p, ec); }
     } cleanup{stage};
-    writeMesh(m, (stage / "mesh.ply").string());
+    writePly(m.mesh, (stage / "mesh.ply").string(), plyOptionsOf(m));
     writeTextFileAtomic((stage / "summary.json").string(), summary.dump(2) + "\n");
     const std::string command = quoted(envOr("ISOUQ_PYTHON", "/usr/bin/python3")) + " " +
         quoted(envOr("ISOUQ_REPORT_SCRIPT", ISOUQ_REPORT_SCRIPT)) + " --mesh " + quoted((stage / "mesh.ply").string()) +
@@ -76,7 +76,8 @@ void cookReport(CookContext& ctx)
     nlohmann::json summary = s ? s->json : nlohmann::json::object();
     const std::string dir = ctx.parms.getString("dir");
     const bool html = ctx.parms.getBool("html");
-    ctx.writes->push_back({dir, [mesh, summary, dir, html] { writeReport(*mesh, summary, dir, html); }});
+    // The pictures are drawn once every node has cooked, before the batch commits.
+    ctx.writes->push_back({dir, [mesh, summary, dir, html](OutputBatch&) { writeReport(*mesh, summary, dir, html); }});
 }
 
 } // namespace

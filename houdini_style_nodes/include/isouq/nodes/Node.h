@@ -8,6 +8,7 @@
 #include "isouq/nodes/Parm.h"
 
 #include <isouq/MeshAttributes.h>
+#include <isouq/MeshIO.h>
 
 #include <openvdb/util/NullInterrupter.h>
 
@@ -42,7 +43,9 @@ struct NodeValue {
 /// A file a write node will produce once the whole graph has cooked.
 struct PendingWrite {
     std::string path;
-    std::function<void()> commit; ///< writes atomically (MeshIO.h); throws IoError
+    /// Writes the output to its temporary file in the batch (MeshIO.h OutputBatch); the graph
+    /// commits the batch, so a run's outputs appear together or not at all. Throws IoError.
+    std::function<void(OutputBatch&)> stage;
 };
 
 /// What a cook sees. Inputs of optional ports that are not connected are absent.
