@@ -159,16 +159,18 @@ std::vector<Coord> blockOrigins(const openvdb::FloatTree& tree)
 
 /// Values and active states of the voxels [-1, 10)^3 around a block: every corner and tricubic
 /// stencil of the block's cells and of their neighbours. One leaf probe per neighbouring block.
+/// Per-cell states are kept as rows of bits along z (bit z + 1 for z in [-1, 10) unless said).
 class Window {
 public:
     static constexpr int kLo = -1, kWidth = 11;
 
-    void gather(const Accessor& acc, const Coord& origin)
+    void gather(const Accessor& acc, const Coord& origin, float k)
     {
         for (int bx = -1; bx <= 1; ++bx)
             for (int by = -1; by <= 1; ++by)
                 for (int bz = -1; bz <= 1; ++bz) gatherBlock(acc, origin, bx, by, bz);
         slopeRows();
+        stateRows(k);
     }
     /// Bits z of the block's cells (x, y, 0..7) that the slope rule flags (SPEC §4): a cell turns
     /// when one of its 12 edges does, and an edge when its three slopes rise and fall.
@@ -194,14 +196,48 @@ public:
         const std::uint32_t across = edges(0, x, y) | edges(0, x, y + 1) | edges(1, x, y) | edges(1, x + 1, y);
         return (alongZ | across | across >> 1) & 0xffu;
     }
-    float value(int x, int y, int z) const { return mValue[index(x, y, z)]; }
-    bool active(int x, int y, int z) const { return mActive[index(x, y, z)]; }
-    /// An active corner: the cell at (x, y, z) is meshed (SPEC §1).
-    bool meshed(int x, int y, int z) const
+    /// Bits z of the block's cells (x, y, 0..7) that are meshed (an active corner, SPEC §1).
+    std::uint32_t meshedCells(int x, int y) const { return (mMeshed[x + 1][y + 1] >> 1) & 0xffu; }
+    /// Bits z of the block's cells (x, y, 0..7) whose 18 face and edge neighbours are meshed.
+    std::uint32_t meshedAround(int x, int y) const
     {
-        for (const auto& o : kMcCornerOffset)
-            if (active(x + o.x, y + o.y, z + o.z)) return true;
-        return false;
+        std::uint32_t all = ~0u;
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy) {
+                const std::uint32_t r = mMeshed[x + dx + 1][y + dy + 1];
+                all &= dx != 0 && dy != 0 ? r >> 1 : r & r >> 1 & r >> 2;
+            }
+        return all & 0xffu;
+    }
+    /// Bits z of the block's cells (x, y, 0..7) whose corners lie on both sides of k.
+    std::uint32_t straddlingCells(int x, int y) const
+    {
+        std::uint32_t in = ~0u, out = ~0u;
+        for (int dx = 0; dx <= 1; ++dx)
+            for (int dy = 0; dy <= 1; ++dy) {
+                in &= mInside[x + dx + 1][y + dy + 1];
+                out &= ~mInside[x + dx + 1][y + dy + 1];
+            }
+        return ~((in & in >> 1) | (out & out >> 1)) >> 1 & 0xffu;
+    }
+    float value(int x, int y, int z) const { return mValue[index(x, y, z)]; }
+    /// The 4x4x4 stencil of the cell (x, y, z) (Tricubic.h layout) and its least and greatest value.
+    void stencil(int x, int y, int z, float* out, float& lo, float& hi) const
+    {
+        float low[4], high[4]; // per z lane, so the compiler keeps four independent chains
+        std::fill(low, low + 4, std::numeric_limits<float>::max());
+        std::fill(high, high + 4, -std::numeric_limits<float>::max());
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) {
+                const float* row = &mValue[index(x + a - 1, y + b - 1, z - 1)];
+                for (int c = 0; c < 4; ++c) {
+                    out[16 * a + 4 * b + c] = row[c];
+                    low[c] = row[c] < low[c] ? row[c] : low[c];
+                    high[c] = row[c] > high[c] ? row[c] : high[c];
+                }
+            }
+        lo = std::min(std::min(low[0], low[1]), std::min(low[2], low[3]));
+        hi = std::max(std::max(high[0], high[1]), std::max(high[2], high[3]));
     }
 
 private:
@@ -253,10 +289,46 @@ private:
                 }
     }
 
+    /// Inside (value >= k) rows of the voxels, and meshed rows of the cells [-1, 9)^3.
+    void stateRows(float k)
+    {
+        std::uint32_t active[kWidth][kWidth];
+        for (int x = 0; x < kWidth; ++x)
+            for (int y = 0; y < kWidth; ++y) {
+                std::uint32_t in = 0, on = 0;
+                for (int z = 0; z < kWidth; ++z) {
+                    const int i = (x * kWidth + y) * kWidth + z;
+                    in |= std::uint32_t(mValue[std::size_t(i)] >= k) << z;
+                    on |= std::uint32_t(mActive[std::size_t(i)]) << z;
+                }
+                mInside[x][y] = in;
+                active[x][y] = on;
+            }
+        for (int x = 0; x < kWidth - 1; ++x)
+            for (int y = 0; y < kWidth - 1; ++y) {
+                const std::uint32_t r = active[x][y] | active[x + 1][y] | active[x][y + 1] | active[x + 1][y + 1];
+                mMeshed[x][y] = (r | r >> 1) & 0x3ffu;
+            }
+    }
+
     std::array<float, kWidth * kWidth * kWidth> mValue{};
     std::array<bool, kWidth * kWidth * kWidth> mActive{};
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
+    std::uint32_t mInside[kWidth][kWidth], mMeshed[kWidth - 1][kWidth - 1];
 };
+
+/// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
+inline std::uint32_t boxRow(const std::optional<CoordBBox>& box, const Coord& origin, int x, int y, int lo, int hi)
+{
+    if (!box) return 0xffu;
+    const Coord c = origin.offsetBy(x, y, 0);
+    for (int a = 0; a < 2; ++a)
+        if (c[a] + lo < box->min()[a] || c[a] + hi > box->max()[a]) return 0;
+    std::uint32_t bits = 0;
+    for (int z = 0; z < kBlock; ++z)
+        bits |= std::uint32_t(c[2] + z + lo >= box->min()[2] && c[2] + z + hi <= box->max()[2]) << z;
+    return bits;
+}
 
 /// Index of sub-point (p, q, r) in refineCell's output.
 inline std::size_t subIndex(int p, int q, int r, int n) { return std::size_t((p * n + q) * n + r); }
@@ -727,56 +799,39 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         const Coord& origin = origins[b];
         DetectScratch& scratch = detectScratch.local();
         Window& w = scratch.window;
-        w.gather(accessors.local(), origin);
+        w.gather(accessors.local(), origin, k);
         BlockResult& out = blockResults[b];
         float stencil[64];
         for (int x = 0; x < kBlock; ++x)
             for (int y = 0; y < kBlock; ++y) {
-                const std::uint32_t turning = w.turningCells(x, y);
-                for (int z = 0; z < kBlock; ++z) {
-                    const Coord cell = origin.offsetBy(x, y, z);
-                    if (bounds && !(bounds->isInside(cell) && bounds->isInside(cell.offsetBy(1)))) continue;
-                    if (!w.meshed(x, y, z)) continue;
-                    ++out.total;
-                    // The rule reads one voxel beyond each edge: cells whose stencil leaves the data
-                    // are never flagged.
-                    if (bounds && !(bounds->isInside(cell.offsetBy(-1)) && bounds->isInside(cell.offsetBy(2))))
-                        continue;
-                    if (!((turning >> z) & 1u)) continue;
-                    ++out.flagged;
-                    float lo = std::numeric_limits<float>::max(), hi = -lo;
-                    for (int a = 0; a < 4; ++a)
-                        for (int c = 0; c < 4; ++c)
-                            for (int d = 0; d < 4; ++d) {
-                                const float v = w.value(x + a - 1, y + c - 1, z + d - 1);
-                                stencil[16 * a + 4 * c + d] = v;
-                                lo = std::min(lo, v);
-                                hi = std::max(hi, v);
-                            }
-                    // The tricubic stays within 1.25^3 (its Lebesgue constant) times the stencil's
-                    // half range of the stencil's mid range: beyond that it cannot reach k.
-                    const double mid = 0.5 * (double(lo) + double(hi)), reach = 1.953125 * 0.5 * (double(hi) - double(lo));
-                    if (std::abs(double(k) - mid) > reach) continue;
-                    bool straddles = false;
-                    for (const auto& o : kMcCornerOffset)
-                        straddles |= (w.value(x + o.x, y + o.y, z + o.z) >= k) != (w.value(x, y, z) >= k);
-                    if (hidden.filter && straddles) {
-                        if (!boundaryReveals(stencil, scratch.weights, m, k)) continue;
-                    } else if (!straddles) {
+                const std::uint32_t cells = w.meshedCells(x, y) & boxRow(bounds, origin, x, y, 0, 1);
+                out.total += std::size_t(__builtin_popcount(cells));
+                // The rule reads one voxel beyond each edge: cells whose stencil leaves the data are
+                // never flagged.
+                std::uint32_t flagged = cells & boxRow(bounds, origin, x, y, -1, 2) & w.turningCells(x, y);
+                out.flagged += std::size_t(__builtin_popcount(flagged));
+                // Transition cells must be meshed too, so the refinement stops one cell short of the
+                // border of the active region (where a sparse surface ends anyway).
+                flagged &= w.meshedAround(x, y);
+                const std::uint32_t straddling = w.straddlingCells(x, y);
+                for (; flagged; flagged &= flagged - 1) {
+                    const int z = __builtin_ctz(flagged);
+                    const bool straddles = (straddling >> z) & 1u;
+                    float lo, hi;
+                    if (hidden.filter || !straddles) w.stencil(x, y, z, stencil, lo, hi);
+                    if (straddles) {
+                        if (hidden.filter && !boundaryReveals(stencil, scratch.weights, m, k)) continue;
+                    } else {
+                        // The tricubic stays within 1.25^3 (its Lebesgue constant) times the stencil's
+                        // half range of the stencil's mid range: beyond that it cannot reach k.
+                        const double mid = 0.5 * (double(lo) + double(hi)), reach = 1.953125 * 0.5 * (double(hi) - double(lo));
+                        if (std::abs(double(k) - mid) > reach) continue;
                         if (!mayCross(tricubicRange(stencil), double(k))) continue;
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
                         if (!crosses(scratch.sub, k)) continue;
                         if (hidden.filter && !reveals(scratch.sub, m, k)) continue;
                     }
-                    // Transition cells must be meshed too, so the refinement stops one cell short of
-                    // the border of the active region (where a sparse surface ends anyway).
-                    bool neighboursMeshed = true;
-                    for (int dx = -1; dx <= 1 && neighboursMeshed; ++dx)
-                        for (int dy = -1; dy <= 1 && neighboursMeshed; ++dy)
-                            for (int dz = -1; dz <= 1 && neighboursMeshed; ++dz)
-                                if (std::abs(dx) + std::abs(dy) + std::abs(dz) <= 2)
-                                    neighboursMeshed = w.meshed(x + dx, y + dy, z + dz);
-                    if (neighboursMeshed) out.refined.push_back(cell);
+                    out.refined.push_back(origin.offsetBy(x, y, z));
                 }
             }
     });

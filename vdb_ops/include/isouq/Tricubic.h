@@ -82,12 +82,14 @@ std::pair<double, double> cubicRange(const T* base, const std::ptrdiff_t* stride
     for (int axis = 0; axis < dims; ++axis)
         for (int block = 0; block < i; block += 4 * step[axis])
             for (int j = block; j < block + step[axis]; ++j) tricubic_internal::toBernstein(c + j, step[axis]);
-    double lo = c[0], hi = c[0];
-    for (int j = 1; j < i; ++j) {
-        lo = std::min(lo, c[j]);
-        hi = std::max(hi, c[j]);
-    }
-    return {lo, hi};
+    double lo[4] = {c[0], c[1], c[2], c[3]}, hi[4] = {c[0], c[1], c[2], c[3]}; // four independent chains
+    for (int j = 4; j < i; j += 4)
+        for (int l = 0; l < 4; ++l) {
+            lo[l] = c[j + l] < lo[l] ? c[j + l] : lo[l];
+            hi[l] = c[j + l] > hi[l] ? c[j + l] : hi[l];
+        }
+    return {std::min(std::min(lo[0], lo[1]), std::min(lo[2], lo[3])),
+        std::max(std::max(hi[0], hi[1]), std::max(hi[2], hi[3]))};
 }
 
 /// cubicRange of the tricubic on a stencil (tricubic()'s layout).
