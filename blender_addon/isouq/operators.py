@@ -90,6 +90,9 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
         binary, tried = pipeline.find_binary(prefs.binary if prefs else "")
         if binary is None:
             raise ValueError(f"isouq binary not found ({tried}); set it in the add-on preferences")
+        menu = pipeline.method_menu(binary)
+        if menu is not None and s.method not in menu:
+            raise ValueError(f"this isouq binary has no method '{s.method}' (it has {', '.join(menu)})")
         request = pipeline.MeshRequest(path, s.isovalue if s.use_isovalue else None, s.method,
                                        s.hidden_features, s.subdivisions, grid,
                                        resolution=s.resolution)

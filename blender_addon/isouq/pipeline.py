@@ -1,6 +1,7 @@
 # Runs `isouq mesh` (SPEC §8) in a subprocess: finds the binary, builds the command line, polls
 # progress, cancels. No bpy, so the operator (modal timer) and the tests share it.
 
+import json
 import os
 import re
 import shutil
@@ -12,6 +13,35 @@ from dataclasses import dataclass, field
 ENV_BINARY = "ISOUQ_CLI"
 METHODS = ("linear", "cubic", "weno", "weno-paper")
 _PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
+
+
+def node_specs(binary):
+    """The node declarations of `isouq nodes --json` (format "isouq-nodes", version 1), by type:
+    the one source of parameter names, menus and tooltips that the CLI and graphs also use."""
+    done = subprocess.run([binary, "nodes", "--json"], capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        raise RuntimeError(f"'{binary} nodes --json' failed: {done.stderr.strip() or done.returncode}")
+    doc = json.loads(done.stdout)
+    if doc.get("format") != "isouq-nodes" or doc.get("format_version") != 1:
+        raise RuntimeError(f"'{binary} nodes --json' is not isouq-nodes version 1")
+    return {node["type"]: node for node in doc["nodes"]}
+
+
+def parm_spec(specs, node_type, token):
+    """One parameter's declaration (token, label, type, default, ranges, menu, tooltip)."""
+    for parm in specs[node_type]["parms"]:
+        if parm["token"] == token:
+            return parm
+    raise KeyError(f"node '{node_type}' has no parameter '{token}'")
+
+
+def method_menu(binary):
+    """The `mesh` node's method tokens as the binary declares them, or None when the binary
+    cannot say (an older build): then the CLI itself rejects an unknown method."""
+    try:
+        return parm_spec(node_specs(binary), "mesh", "method")["menu"]
+    except (OSError, RuntimeError, KeyError, ValueError, subprocess.TimeoutExpired):
+        return None
 
 
 def repo_binaries():

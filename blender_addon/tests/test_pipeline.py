@@ -35,7 +35,9 @@ def fake(sphere_ply, tmp_path, monkeypatch):
 
 
 def logged(log):
-    return [json.loads(line) for line in log.read_text().splitlines()]
+    """The fake's `mesh` invocations (the add-on also asks `nodes --json` for the methods)."""
+    runs = [json.loads(line) for line in log.read_text().splitlines()]
+    return [argv for argv in runs if argv[:1] == ["mesh"]]
 
 
 def test_run_imports_mesh_hidden_mesh_and_summary(fake):

@@ -284,3 +284,15 @@ def test_hidden_features_from_blender_reconnect_the_teardrop(cli, tmp_path):
     assert hidden.active_material.blend_method == "BLEND"
     assert bpy.ops.isouq.combined_view() == {"FINISHED"}
     assert hidden.active_material.name == "ISOUQ_combined" and standard.hide_render
+
+
+def test_node_declarations_match_the_addon(cli):
+    """`isouq nodes --json` is the one declaration of parameters (issue 5): the add-on's method
+    menus are the mesh and method-blend nodes' menus, token for token."""
+    from isouq import props
+    specs = pipeline.node_specs(cli)
+    run_tokens = [item[0] for item in props.RUN_METHODS]
+    view_tokens = [item[0] for item in props.VIEW_METHODS]
+    assert pipeline.method_menu(cli) == run_tokens
+    assert set(view_tokens) <= set(pipeline.parm_spec(specs, "method_blend", "inside")["menu"])
+    assert pipeline.parm_spec(specs, "read_volume", "resolution")["type"] == "int"
