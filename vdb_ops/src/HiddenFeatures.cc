@@ -221,24 +221,40 @@ public:
         return ~((in & in >> 1) | (out & out >> 1)) >> 1 & 0xffu;
     }
     float value(int x, int y, int z) const { return mValue[index(x, y, z)]; }
-    /// The 4x4x4 stencil of the cell (x, y, z) (Tricubic.h layout) and its least and greatest value.
-    void stencil(int x, int y, int z, float* out, float& lo, float& hi) const
+    /// The 4x4x4 stencil of the cell (x, y, z) (Tricubic.h layout).
+    void stencil(int x, int y, int z, float* out) const
     {
-        float low[4], high[4]; // per z lane, so the compiler keeps four independent chains
-        std::fill(low, low + 4, std::numeric_limits<float>::max());
-        std::fill(high, high + 4, -std::numeric_limits<float>::max());
         for (int a = 0; a < 4; ++a)
-            for (int b = 0; b < 4; ++b) {
-                const float* row = &mValue[index(x + a - 1, y + b - 1, z - 1)];
-                for (int c = 0; c < 4; ++c) {
-                    out[16 * a + 4 * b + c] = row[c];
-                    low[c] = row[c] < low[c] ? row[c] : low[c];
-                    high[c] = row[c] > high[c] ? row[c] : high[c];
+            for (int b = 0; b < 4; ++b) std::copy_n(&mValue[index(x + a - 1, y + b - 1, z - 1)], 4, out + 16 * a + 4 * b);
+    }
+    /// The least and greatest value of every cell's stencil, separably (z, then y, then x).
+    void stencilRanges()
+    {
+        float lo[kWidth][kWidth][kBlock], hi[kWidth][kWidth][kBlock];
+        for (int x = 0; x < kWidth; ++x)
+            for (int y = 0; y < kWidth; ++y) {
+                const float* row = &mValue[std::size_t((x * kWidth + y) * kWidth)];
+                for (int z = 0; z < kBlock; ++z) {
+                    lo[x][y][z] = std::min(std::min(row[z], row[z + 1]), std::min(row[z + 2], row[z + 3]));
+                    hi[x][y][z] = std::max(std::max(row[z], row[z + 1]), std::max(row[z + 2], row[z + 3]));
                 }
             }
-        lo = std::min(std::min(low[0], low[1]), std::min(low[2], low[3]));
-        hi = std::max(std::max(high[0], high[1]), std::max(high[2], high[3]));
+        for (int x = 0; x < kWidth; ++x)
+            for (int y = 0; y < kBlock; ++y)
+                for (int z = 0; z < kBlock; ++z) {
+                    lo[x][y][z] = std::min(std::min(lo[x][y][z], lo[x][y + 1][z]), std::min(lo[x][y + 2][z], lo[x][y + 3][z]));
+                    hi[x][y][z] = std::max(std::max(hi[x][y][z], hi[x][y + 1][z]), std::max(hi[x][y + 2][z], hi[x][y + 3][z]));
+                }
+        for (int x = 0; x < kBlock; ++x)
+            for (int y = 0; y < kBlock; ++y)
+                for (int z = 0; z < kBlock; ++z) {
+                    mLow[x][y][z] = std::min(std::min(lo[x][y][z], lo[x + 1][y][z]), std::min(lo[x + 2][y][z], lo[x + 3][y][z]));
+                    mHigh[x][y][z] = std::max(std::max(hi[x][y][z], hi[x + 1][y][z]), std::max(hi[x + 2][y][z], hi[x + 3][y][z]));
+                }
     }
+    /// After stencilRanges: the least and greatest value of the stencil of the cell (x, y, z).
+    float stencilLow(int x, int y, int z) const { return mLow[x][y][z]; }
+    float stencilHigh(int x, int y, int z) const { return mHigh[x][y][z]; }
 
 private:
     static int index(int x, int y, int z) { return ((x - kLo) * kWidth + (y - kLo)) * kWidth + (z - kLo); }
@@ -315,6 +331,7 @@ private:
     std::array<bool, kWidth * kWidth * kWidth> mActive{};
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
     std::uint32_t mInside[kWidth][kWidth], mMeshed[kWidth - 1][kWidth - 1];
+    float mLow[kBlock][kBlock][kBlock], mHigh[kBlock][kBlock][kBlock];
 };
 
 /// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
@@ -802,6 +819,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         w.gather(accessors.local(), origin, k);
         BlockResult& out = blockResults[b];
         float stencil[64];
+        w.stencilRanges();
         for (int x = 0; x < kBlock; ++x)
             for (int y = 0; y < kBlock; ++y) {
                 const std::uint32_t cells = w.meshedCells(x, y) & boxRow(bounds, origin, x, y, 0, 1);
@@ -816,16 +834,18 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                 const std::uint32_t straddling = w.straddlingCells(x, y);
                 for (; flagged; flagged &= flagged - 1) {
                     const int z = __builtin_ctz(flagged);
-                    const bool straddles = (straddling >> z) & 1u;
-                    float lo, hi;
-                    if (hidden.filter || !straddles) w.stencil(x, y, z, stencil, lo, hi);
-                    if (straddles) {
-                        if (hidden.filter && !boundaryReveals(stencil, scratch.weights, m, k)) continue;
+                    if ((straddling >> z) & 1u) {
+                        if (hidden.filter) {
+                            w.stencil(x, y, z, stencil);
+                            if (!boundaryReveals(stencil, scratch.weights, m, k)) continue;
+                        }
                     } else {
                         // The tricubic stays within 1.25^3 (its Lebesgue constant) times the stencil's
                         // half range of the stencil's mid range: beyond that it cannot reach k.
-                        const double mid = 0.5 * (double(lo) + double(hi)), reach = 1.953125 * 0.5 * (double(hi) - double(lo));
+                        const double lo = w.stencilLow(x, y, z), hi = w.stencilHigh(x, y, z);
+                        const double mid = 0.5 * (lo + hi), reach = 1.953125 * 0.5 * (hi - lo);
                         if (std::abs(double(k) - mid) > reach) continue;
+                        w.stencil(x, y, z, stencil);
                         if (!mayCross(tricubicRange(stencil), double(k))) continue;
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
                         if (!crosses(scratch.sub, k)) continue;

@@ -64,6 +64,34 @@ inline void toBernstein(double* v, std::ptrdiff_t s)
 
 } // namespace tricubic_internal
 
+namespace tricubic_internal {
+
+/// cubicRange with the dimension known at compile time, so the loops unroll and vectorise.
+template <int Dims, typename T>
+std::pair<double, double> cubicRangeOf(const T* base, const std::ptrdiff_t* strides)
+{
+    constexpr int n1 = Dims > 1 ? 4 : 1, n2 = Dims > 2 ? 4 : 1, count = 4 * n1 * n2;
+    const std::ptrdiff_t s1 = Dims > 1 ? strides[1] : 0, s2 = Dims > 2 ? strides[2] : 0;
+    double c[count];
+    for (int a = 0; a < 4; ++a)
+        for (int b = 0; b < n1; ++b)
+            for (int d = 0; d < n2; ++d) c[(a * n1 + b) * n2 + d] = double(base[a * strides[0] + b * s1 + d * s2]);
+    constexpr int step[3] = {n1 * n2, n2, 1};
+    for (int axis = 0; axis < Dims; ++axis)
+        for (int block = 0; block < count; block += 4 * step[axis])
+            for (int j = block; j < block + step[axis]; ++j) toBernstein(c + j, step[axis]);
+    double lo[4] = {c[0], c[1], c[2], c[3]}, hi[4] = {c[0], c[1], c[2], c[3]}; // four independent chains
+    for (int j = 4; j < count; j += 4)
+        for (int l = 0; l < 4; ++l) {
+            lo[l] = c[j + l] < lo[l] ? c[j + l] : lo[l];
+            hi[l] = c[j + l] > hi[l] ? c[j + l] : hi[l];
+        }
+    return {std::min(std::min(lo[0], lo[1]), std::min(lo[2], lo[3])),
+        std::max(std::max(hi[0], hi[1]), std::max(hi[2], hi[3]))};
+}
+
+} // namespace tricubic_internal
+
 /// Bounds [lo, hi] of the tensor-product Lagrange cubic over its cell [0, 1]^dims (dims 1, 2 or
 /// 3; 4^dims values at base[a * strides[0] + b * strides[1] + c * strides[2]]): the least and
 /// greatest Bernstein coefficient (the polynomial lies in their convex hull). Exact but for
@@ -71,25 +99,9 @@ inline void toBernstein(double* v, std::ptrdiff_t s)
 template <typename T>
 std::pair<double, double> cubicRange(const T* base, const std::ptrdiff_t* strides, int dims)
 {
-    double c[64];
-    const int n0 = 4, n1 = dims > 1 ? 4 : 1, n2 = dims > 2 ? 4 : 1;
-    int i = 0;
-    for (int a = 0; a < n0; ++a)
-        for (int b = 0; b < n1; ++b)
-            for (int d = 0; d < n2; ++d)
-                c[i++] = double(base[a * strides[0] + (dims > 1 ? b * strides[1] : 0) + (dims > 2 ? d * strides[2] : 0)]);
-    const int step[3] = {n1 * n2, n2, 1};
-    for (int axis = 0; axis < dims; ++axis)
-        for (int block = 0; block < i; block += 4 * step[axis])
-            for (int j = block; j < block + step[axis]; ++j) tricubic_internal::toBernstein(c + j, step[axis]);
-    double lo[4] = {c[0], c[1], c[2], c[3]}, hi[4] = {c[0], c[1], c[2], c[3]}; // four independent chains
-    for (int j = 4; j < i; j += 4)
-        for (int l = 0; l < 4; ++l) {
-            lo[l] = c[j + l] < lo[l] ? c[j + l] : lo[l];
-            hi[l] = c[j + l] > hi[l] ? c[j + l] : hi[l];
-        }
-    return {std::min(std::min(lo[0], lo[1]), std::min(lo[2], lo[3])),
-        std::max(std::max(hi[0], hi[1]), std::max(hi[2], hi[3]))};
+    using tricubic_internal::cubicRangeOf;
+    return dims == 1 ? cubicRangeOf<1>(base, strides)
+                     : dims == 2 ? cubicRangeOf<2>(base, strides) : cubicRangeOf<3>(base, strides);
 }
 
 /// cubicRange of the tricubic on a stencil (tricubic()'s layout).
