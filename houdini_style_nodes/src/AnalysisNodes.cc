@@ -234,6 +234,12 @@ void cookSummary(CookContext& ctx)
     s["isovalue"] = m.isovalue;
     s["method"] = m.method;
     for (const auto& [key, value] : m.info.items()) s[key] = value;
+    // C7's "components before and after hidden-feature recovery" beside the views' blocks.
+    if (const NodeValue* hidden = ctx.input("hidden")) {
+        if (!hidden->mesh || !hidden->mesh->info.contains("hidden"))
+            throw std::invalid_argument("input 'hidden' is not the output of a hidden_features node");
+        s["hidden"] = hidden->mesh->info["hidden"];
+    }
     ctx.outputs["summary"].json = s;
 }
 
@@ -313,7 +319,8 @@ void addAnalysisNodes(std::vector<NodeType>& types)
     sum.description = "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the "
                       "blocks of the views upstream (threshold with its count above, box, blend, compare, "
                       "hidden with components before and after recovery).";
-    sum.inputs = {{"mesh", "mesh", "The mesh to summarise"}};
+    sum.inputs = {{"mesh", "mesh", "The mesh to summarise"},
+        {"hidden", "mesh", "Optional: the hidden-feature mesh, for components before and after recovery", true}};
     sum.outputs = {{"summary", "json", "The summary"}};
     sum.cook = cookSummary;
     types.push_back(std::move(sum));
