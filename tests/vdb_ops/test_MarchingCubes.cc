@@ -431,3 +431,37 @@ TEST_CASE("MarchingCubes: a NaN stencil voxel outside the active set makes the m
         CHECK(tWeno[v] == Approx(0.5f).margin(1e-6));
     }
 }
+
+TEST_CASE("MarchingCubes: a reused mesher and mesh give what a fresh call gives", "[mc][reuse]")
+{
+    openvdb::initialize();
+    auto big = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(1.0f, {0.0f, 0.0f, 0.0f}, 0.02f);
+    auto small = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(0.5f, {0.1f, 0.0f, 0.0f}, 0.05f);
+    MeshSettings full;
+    full.uncertainty = true;
+    IsosurfaceMesher mesher(full);
+    Mesh reused;
+    mesher(*big, reused);
+    reused.vertexAttributes.add<float>("stale_user_column", reused.vertexCount());
+    // Smaller grid, fewer columns: the content equals a fresh extraction, leftovers are gone.
+    mesher.settings().uncertainty = false;
+    mesher(*small, reused);
+    MeshSettings linear;
+    const Mesh fresh = extractIsosurface(*small, linear);
+    CHECK(reused.positions == fresh.positions);
+    CHECK(reused.triangles == fresh.triangles);
+    CHECK(reused.vertexAttributes.columns().size() == fresh.vertexAttributes.columns().size());
+    // Back to the big grid with every column: equal to a fresh extraction.
+    mesher.settings().uncertainty = true;
+    mesher(*big, reused);
+    const Mesh freshBig = extractIsosurface(*big, full);
+    CHECK(reused.positions == freshBig.positions);
+    CHECK(*reused.vertexAttributes.find<float>("d_lw") == *freshBig.vertexAttributes.find<float>("d_lw"));
+    CHECK(reused.vertexAttributes.has("stale_user_column") == false);
+    // Meshing the same grid again keeps every column's storage.
+    const float* storage = reused.vertexAttributes.find<float>("d_lw")->data();
+    const openvdb::Vec3s* positions = reused.positions.data();
+    mesher(*big, reused);
+    CHECK(reused.vertexAttributes.find<float>("d_lw")->data() == storage);
+    CHECK(reused.positions.data() == positions);
+}

@@ -441,11 +441,29 @@ void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupt
 
 } // namespace mc_internal
 
+namespace mc_internal {
+/// What an IsosurfaceMesher keeps between calls.
+struct MesherBuffers {
+    std::vector<std::uint8_t> sides;
+    std::vector<BlockCounts> counts;
+    std::vector<std::uint64_t> vertexOffsets, triangleOffsets;
+    EdgeMasks masks;
+};
+} // namespace mc_internal
+
+IsosurfaceMesher::IsosurfaceMesher(const MeshSettings& settings)
+    : mSettings(settings), mBuffers(std::make_unique<mc_internal::MesherBuffers>())
+{
+}
+
+IsosurfaceMesher::~IsosurfaceMesher() = default;
+
 template <typename GridT>
-Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
-    openvdb::util::NullInterrupter* interrupter)
+void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
 {
     using namespace mc_internal;
+    const MeshSettings& settings = mSettings;
+    MesherBuffers& buffers = *mBuffers;
     using TreeT = typename GridT::TreeType;
     static_assert(std::is_floating_point<typename GridT::ValueType>::value,
         "extractIsosurface needs a scalar floating-point grid");
@@ -479,13 +497,15 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     const std::size_t work = 3 * blockCount;
 
     // Which side of the isovalue each block lies on, so blocks far from the surface cost little.
-    std::vector<std::uint8_t> sides(blockCount);
+    std::vector<std::uint8_t>& sides = buffers.sides;
+    sides.assign(blockCount, 0);
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
     });
 
     // Count pass: per block its counts; the edge masks of non-empty blocks go to per-thread lists.
-    std::vector<BlockCounts> counts(blockCount);
+    std::vector<BlockCounts>& counts = buffers.counts;
+    counts.assign(blockCount, BlockCounts{});
     tbb::enumerable_thread_specific<std::vector<std::pair<std::int32_t, EdgeMask>>> found;
     forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
@@ -497,8 +517,11 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     });
 
     // Serial prefix sums: each block's place in the output, independent of the thread count.
-    std::vector<std::uint64_t> vertexOffsets(blockCount + 1), triangleOffsets(blockCount + 1);
-    EdgeMasks masks;
+    std::vector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
+    std::vector<std::uint64_t>& triangleOffsets = buffers.triangleOffsets;
+    vertexOffsets.assign(blockCount + 1, 0);
+    triangleOffsets.assign(blockCount + 1, 0);
+    EdgeMasks& masks = buffers.masks;
     masks.slot.assign(blockCount, -1);
     std::int32_t nonEmpty = 0;
     for (std::size_t b = 0; b < blockCount; ++b) {
@@ -514,7 +537,6 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
 
-    Mesh mesh;
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();
     mesh.positions.resize(vertexOffsets[blockCount]);
@@ -538,8 +560,21 @@ Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
                     neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
         fillTriangles(s, neighbours, masks, vertexOffsets, flip, mesh.triangles.data() + triangleOffsets[b]);
     });
+}
+
+template void IsosurfaceMesher::operator()<openvdb::FloatGrid>(
+    const openvdb::FloatGrid&, Mesh&, openvdb::util::NullInterrupter*);
+
+template <typename GridT>
+Mesh extractIsosurface(const GridT& grid, const MeshSettings& settings,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    Mesh mesh;
+    IsosurfaceMesher mesher(settings);
+    mesher(grid, mesh, interrupter);
     return mesh;
 }
+
 
 template Mesh extractIsosurface<openvdb::FloatGrid>(
     const openvdb::FloatGrid&, const MeshSettings&, openvdb::util::NullInterrupter*);

@@ -57,28 +57,51 @@ struct VertexColumns {
     float *errEstCubic = nullptr, *errEstWeno = nullptr;
     float *dLc = nullptr, *dLw = nullptr, *dCw = nullptr, *maxVar = nullptr;
 
-    /// Sizes the mesh's columns (positions already sized) and points at them.
+    /// Sizes the mesh's columns (positions already sized), drops the columns this pass does not
+    /// write (a reused mesh's leftovers), and points at them. The pointers are to the columns'
+    /// storage, which moving a column (the table growing or shrinking) does not move.
     static VertexColumns allocate(Mesh& mesh, bool provenance, const MeshSettings& settings)
     {
+        std::vector<std::string> names;
         VertexColumns c;
+        declare(mesh, provenance, settings, names, c);
+        mesh.vertexAttributes.retainOnly(names);
+        mesh.faceAttributes.clear();
+        return c;
+    }
+
+private:
+    static void declare(Mesh& mesh, bool provenance, const MeshSettings& settings,
+        std::vector<std::string>& names, VertexColumns& c)
+    {
+        names.clear();
         c.positions = mesh.positions.data();
         const std::size_t n = mesh.positions.size();
         AttributeTable& a = mesh.vertexAttributes;
-        auto addFloat = [&](const char* name) { return a.add<float>(name, n).data(); };
+        auto addFloat = [&](const char* name) {
+            names.emplace_back(name);
+            return a.add<float>(name, n).data();
+        };
+        auto addInt = [&](const char* name) {
+            names.emplace_back(name);
+            return a.add<std::int32_t>(name, n).data();
+        };
         if (provenance) {
-            c.edgeI = a.add<std::int32_t>("edge_i", n).data();
-            c.edgeJ = a.add<std::int32_t>("edge_j", n).data();
-            c.edgeK = a.add<std::int32_t>("edge_k", n).data();
+            c.edgeI = addInt("edge_i");
+            c.edgeJ = addInt("edge_j");
+            c.edgeK = addInt("edge_k");
+            names.emplace_back("edge_axis");
             c.edgeAxis = a.add<std::uint8_t>("edge_axis", n).data();
             c.tLinear = addFloat("t_linear");
         }
-        if (!settings.uncertainty) return c;
+        if (!settings.uncertainty) return;
         c.errEst = addFloat("err_est");
         c.errBound = addFloat("err_bound");
-        if (!settings.highOrder) return c;
+        if (!settings.highOrder) return;
         c.tCubic = addFloat("t_cubic");
         c.tWeno = addFloat("t_weno");
         if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat("t_weno_paper");
+        names.emplace_back("order");
         c.order = a.add<std::uint8_t>("order", n).data();
         c.errBest = addFloat("err_best");
         c.errBestSurface = addFloat("err_best_surface");
@@ -88,7 +111,7 @@ struct VertexColumns {
         c.dLw = addFloat("d_lw");
         c.dCw = addFloat("d_cw");
         c.maxVar = addFloat("max_var");
-        return c;
+        return;
     }
 };
 

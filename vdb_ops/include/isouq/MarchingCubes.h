@@ -13,6 +13,7 @@
 
 #include <openvdb/openvdb.h>
 
+#include <memory>
 #include <optional>
 
 namespace isouq {
@@ -57,6 +58,37 @@ struct MeshSettings {
     std::optional<openvdb::CoordBBox> brick;
     bool threaded = true;
 };
+
+namespace mc_internal {
+struct MesherBuffers;
+}
+
+/// The mesher as an object that keeps its buffers between calls (interactive re-meshing,
+/// benchmarks; DESIGN.md "Memory and allocation"): meshing again, into the same Mesh, reuses
+/// the block tables and the output arrays instead of faulting in new pages.
+class IsosurfaceMesher {
+public:
+    explicit IsosurfaceMesher(const MeshSettings& settings = MeshSettings());
+    ~IsosurfaceMesher();
+    IsosurfaceMesher(const IsosurfaceMesher&) = delete;
+    IsosurfaceMesher& operator=(const IsosurfaceMesher&) = delete;
+
+    MeshSettings& settings() { return mSettings; }
+    const MeshSettings& settings() const { return mSettings; }
+
+    /// Meshes @a grid into @a mesh, replacing its content (columns the settings do not produce
+    /// are removed) and reusing its storage. On an exception the mesh's content is unspecified.
+    /// @throw as extractIsosurface.
+    template <typename GridT>
+    void operator()(const GridT& grid, Mesh& mesh, openvdb::util::NullInterrupter* interrupter = nullptr);
+
+private:
+    MeshSettings mSettings;
+    std::unique_ptr<mc_internal::MesherBuffers> mBuffers;
+};
+
+extern template void IsosurfaceMesher::operator()<openvdb::FloatGrid>(
+    const openvdb::FloatGrid&, Mesh&, openvdb::util::NullInterrupter*);
 
 /// Extracts the isosurface of @a grid at settings.isovalue.
 /// @throw openvdb::ValueError if the isovalue is not finite.

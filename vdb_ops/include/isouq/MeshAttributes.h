@@ -25,10 +25,16 @@ struct Attribute {
 class AttributeTable {
 public:
     /// Adds (or replaces) a column of @a size default-initialised values and returns it.
+    /// An existing column of the same type keeps its storage (and its address), so meshing
+    /// again into the same Mesh allocates nothing new.
     template <typename T>
     std::vector<T>& add(std::string_view name, std::size_t size)
     {
         if (Attribute* existing = findColumn(name)) {
+            if (auto* same = std::get_if<std::vector<T>>(&existing->data)) {
+                same->assign(size, T());
+                return *same;
+            }
             existing->data = std::vector<T>(size);
             return std::get<std::vector<T>>(existing->data);
         }
@@ -60,6 +66,18 @@ public:
     const std::vector<Attribute>& columns() const { return mColumns; }
     std::vector<Attribute>& columns() { return mColumns; }
     void clear() { mColumns.clear(); }
+    /// Removes every column whose name is not in @a names (order of the rest kept).
+    void retainOnly(const std::vector<std::string>& names)
+    {
+        std::vector<Attribute> kept;
+        for (Attribute& a : mColumns)
+            for (const std::string& n : names)
+                if (a.name == n) {
+                    kept.push_back(std::move(a));
+                    break;
+                }
+        mColumns = std::move(kept);
+    }
 
 private:
     Attribute* findColumn(std::string_view name)
