@@ -104,7 +104,14 @@ openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dat
 
 float isovalueOf(const std::string& name) { return name == "smoke" || name == "tangle32" ? 0.1f : 0.0f; }
 
-CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue)
+/// With --reuse, isouq meshes through one IsosurfaceMesher into one Mesh for the whole case,
+/// as an interactive viewer would (DESIGN.md "Memory and allocation").
+struct Reuse {
+    isouq::IsosurfaceMesher mesher;
+    isouq::Mesh mesh;
+};
+
+CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue, Reuse* reuse = nullptr)
 {
     CallResult r;
     if (algo != Algo::VolumeToMesh) {
@@ -112,7 +119,11 @@ CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue)
         settings.isovalue = isovalue;
         settings.uncertainty = algo != Algo::Isouq;
         settings.highOrder = algo == Algo::IsouqFull;
-        const isouq::Mesh mesh = isouq::extractIsosurface(grid, settings);
+        isouq::Mesh fresh;
+        if (reuse) reuse->mesher.settings() = settings;
+        isouq::Mesh& mesh = reuse ? reuse->mesh : fresh;
+        if (reuse) reuse->mesher(grid, mesh);
+        else fresh = isouq::extractIsosurface(grid, settings);
         r.triangles = mesh.triangles.size();
         r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
                         mesh.triangles.size() * sizeof(openvdb::Vec3I);
@@ -230,6 +241,7 @@ struct Options {
     int memoryRuns = 3;
     std::string dataDir = ISOUQ_DATA_DIR;
     Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full
+    bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -254,6 +266,7 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--repeats") o.repeats = std::stoi(next());
         else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
         else if (arg == "--data") o.dataDir = next();
+        else if (arg == "--reuse") o.reuse = true;
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
             if (o.isouqPass == Algo::VolumeToMesh) throw std::runtime_error("--pass takes linear, estimate or full");
@@ -264,7 +277,7 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full]");
+                                     "[--pass linear|estimate|full] [--reuse]");
         }
     }
     return o;
@@ -281,12 +294,13 @@ void benchCase(const std::string& caseName, const Options& o)
         const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
         const Algo algos[2] = {o.isouqPass, Algo::VolumeToMesh};
         std::size_t tris[2] = {0, 0};
-        for (int a = 0; a < 2; ++a) tris[a] = runOnce(algos[a], *grid, isovalue).triangles; // warm-up
+        std::unique_ptr<Reuse> reuse = o.reuse ? std::make_unique<Reuse>() : nullptr;
+        for (int a = 0; a < 2; ++a) tris[a] = runOnce(algos[a], *grid, isovalue, reuse.get()).triangles; // warm-up
         std::vector<double> wall[2], cpu[2];
         for (int r = 0; r < o.repeats; ++r)
             for (int a = 0; a < 2; ++a) {
                 const double w0 = wallSeconds(), c0 = cpuSeconds();
-                runOnce(algos[a], *grid, isovalue);
+                runOnce(algos[a], *grid, isovalue, reuse.get());
                 wall[a].push_back(wallSeconds() - w0);
                 cpu[a].push_back(cpuSeconds() - c0);
             }
@@ -320,7 +334,7 @@ int main(int argc, char** argv)
         const Options o = parseOptions(argc, argv);
         std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
                     "fresh processes.\n\n",
-            algoName(o.isouqPass),
+            (std::string(algoName(o.isouqPass)) + (o.reuse ? ", reused mesher and mesh" : "")).c_str(),
             loadAverage().c_str(), o.repeats, o.memoryRuns);
         std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
                     "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "
