@@ -92,6 +92,7 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
     if (job.hiddenFeatures) {
         HiddenFeatureSettings hidden;
         hidden.subdivisions = job.subdivisions;
+        hidden.filter = job.hiddenFilter;
         hiddenMesh = addHiddenFeatures(*volume.grid, mesh, settings, hidden, &hiddenStats, interrupter);
         clock.lap(timings, "hidden");
     }
@@ -103,7 +104,7 @@ nlohmann::json runMeshJob(const MeshJob& job, openvdb::util::NullInterrupter* in
             {"fraction", hiddenStats.fraction()}, {"cells_refined", hiddenStats.cellsRefined},
             {"cells_transition", hiddenStats.cellsTransition}, {"components_before", summary["components"]},
             {"components_after", after.components}, {"boundary_edges", after.boundaryEdges},
-            {"subdivisions", job.subdivisions}};
+            {"subdivisions", job.subdivisions}, {"filter", job.hiddenFilter}};
         if (!job.hiddenOutput.empty()) summary["hidden"]["output"] = job.hiddenOutput;
     }
     clock.lap(timings, "measure");

@@ -277,7 +277,9 @@ void addVolumeNodes(std::vector<NodeType>& types)
                    "--subdivisions"),
             std::make_pair(2.0, 8.0), std::make_pair(1.0, 64.0)),
         parm("filter", "Filter", ParmType::Bool, false,
-            "Refine only where the tricubic reveals a sign the cell's corners hide"),
+            "Refine only where the tricubic reveals a sign the cell's corners hide: 5-6x cheaper on "
+            "noisy scans, fewer noise bubbles; keep it off for smooth fields (docs/hidden-features.md)",
+            "--hidden-filter"),
     };
     hidden.inputs = {{"volume", "volume", "The volume the mesh came from"},
         {"mesh", "mesh", "The standard mesh, straight from a mesh node"}};
