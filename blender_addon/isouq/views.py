@@ -257,6 +257,9 @@ def show_hidden(context, obj):
     materials.assign(hidden, materials.hidden_material())
     standard.hide_render = standard.hide_viewport = False
     hidden.hide_render = hidden.hide_viewport = False
+    # Where the two surfaces coincide the viewport would z-fight: draw the transparent orange
+    # surface in front, so it always lies over the blue one (renders blend the two layers).
+    hidden.show_in_front = True
     return standard, hidden
 
 

@@ -290,6 +290,7 @@ def test_hidden_over_standard_and_combined(sphere, sphere_ply):
     assert orange.name == "ISOUQ_hidden" and orange.blend_method == "BLEND"
     bsdf = next(n for n in orange.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     assert bsdf.inputs["Alpha"].default_value < 1
+    assert hidden.show_in_front and not obj.show_in_front  # orange drawn over blue, no z-fight
     assert bpy.ops.isouq.combined_view() == {"FINISHED"}
     nodes = hidden.active_material.node_tree.nodes
     assert nodes["Hidden face"].attribute_name == "hidden_face"
