@@ -819,7 +819,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         w.gather(accessors.local(), origin, k);
         BlockResult& out = blockResults[b];
         float stencil[64];
-        w.stencilRanges();
+        bool haveRanges = false; // stencilRanges only in blocks with a non-straddling candidate
         for (int x = 0; x < kBlock; ++x)
             for (int y = 0; y < kBlock; ++y) {
                 const std::uint32_t cells = w.meshedCells(x, y) & boxRow(bounds, origin, x, y, 0, 1);
@@ -842,6 +842,10 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                     } else {
                         // The tricubic stays within 1.25^3 (its Lebesgue constant) times the stencil's
                         // half range of the stencil's mid range: beyond that it cannot reach k.
+                        if (!haveRanges) {
+                            w.stencilRanges();
+                            haveRanges = true;
+                        }
                         const double lo = w.stencilLow(x, y, z), hi = w.stencilHigh(x, y, z);
                         const double mid = 0.5 * (lo + hi), reach = 1.953125 * 0.5 * (hi - lo);
                         if (std::abs(double(k) - mid) > reach) continue;
