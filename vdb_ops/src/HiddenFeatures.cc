@@ -850,6 +850,11 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
                         const double mid = 0.5 * (lo + hi), reach = 1.953125 * 0.5 * (hi - lo);
                         if (std::abs(double(k) - mid) > reach) continue;
                         w.stencil(x, y, z, stencil);
+                        // The float hull first: its margin (100x its rounding, Tricubic.h, plus
+                        // mayCross's slack) leaves every decision to the double hull's.
+                        const auto rough = roughTricubicRange(stencil);
+                        const double margin = 1e-3 * (std::abs(lo) + std::abs(hi) + std::abs(double(k)));
+                        if (double(rough.first) - margin >= k || double(rough.second) + margin < k) continue;
                         if (!mayCross(tricubicRange(stencil), double(k))) continue;
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
                         if (!crosses(scratch.sub, k)) continue;
