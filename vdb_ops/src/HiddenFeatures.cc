@@ -406,6 +406,10 @@ inline bool mayCross(const std::pair<double, double>& range, double k)
 /// (Tricubic.h), so the answer is reveals()'.
 bool boundaryReveals(const float* stencil, const std::vector<CubicWeights>& w, int m, double k)
 {
+    bool cornerInside[2][2][2];
+    for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b)
+            for (int c = 0; c < 2; ++c) cornerInside[a][b][c] = double(stencil[16 * (1 + a) + 4 * (1 + b) + 1 + c]) >= k;
     for (int sx = 0; sx < 3; ++sx)
         for (int sy = 0; sy < 3; ++sy)
             for (int sz = 0; sz < 3; ++sz) {
@@ -420,11 +424,11 @@ bool boundaryReveals(const float* stencil, const std::vector<CubicWeights>& w, i
                     local[a][1] = s[a] == 0 ? 0 : m;
                 }
                 int corners = 0, inside = 0;
-                for (int a = local[0][0]; a <= local[0][1]; a += m)
-                    for (int b = local[1][0]; b <= local[1][1]; b += m)
-                        for (int c = local[2][0]; c <= local[2][1]; c += m) {
+                for (int a = s[0] == 1; a <= (s[0] != 0); ++a)
+                    for (int b = s[1] == 1; b <= (s[1] != 0); ++b)
+                        for (int c = s[2] == 1; c <= (s[2] != 0); ++c) {
                             ++corners;
-                            inside += double(stencil[16 * (1 + a / m) + 4 * (1 + b / m) + 1 + c / m]) >= k;
+                            inside += cornerInside[a][b][c];
                         }
                 if (inside != 0 && inside != corners) continue;
                 std::ptrdiff_t strides[2];
