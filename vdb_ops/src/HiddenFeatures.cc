@@ -995,15 +995,24 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     std::vector<std::uint8_t> keep(standard.triangleCount(), 1);
     tbb::enumerable_thread_specific<CellSetAccessor> replacedAccessors([&] { return CellSetAccessor(replacedSet); });
     forEach(standard.triangleCount(), 4096, threaded, interrupter, [&](std::size_t t) {
+        CellSetAccessor& replaced = replacedAccessors.local();
         std::array<Coord, 3> voxel;
         std::array<int, 3> axis;
+        const std::size_t v0 = standard.triangles[t][0];
+        voxel[0] = Coord((*edgeI)[v0], (*edgeJ)[v0], (*edgeK)[v0]);
+        // The cell lies within one voxel below voxel[0] on each axis: inside voxel[0]'s leaf when
+        // no coordinate is a multiple of 8, and then an empty leaf region settles it.
+        if ((voxel[0].x() & 7) && (voxel[0].y() & 7) && (voxel[0].z() & 7)) {
+            const auto* leaf = replaced.probeConstLeaf(voxel[0]);
+            if (leaf ? leaf->isEmpty() : !replaced.isValueOn(voxel[0])) return;
+        }
         for (int i = 0; i < 3; ++i) {
             const std::size_t v = standard.triangles[t][i];
             voxel[std::size_t(i)] = Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
             axis[std::size_t(i)] = (*edgeAxis)[v];
         }
         const std::optional<Coord> cell = cellOfTriangle(voxel, axis);
-        if (cell && replacedAccessors.local().isValueOn(*cell)) keep[t] = 0;
+        if (cell && replaced.isValueOn(*cell)) keep[t] = 0;
     });
 
     // Vertex numbering: used standard vertices in their order, then fine vertices, then centres.
