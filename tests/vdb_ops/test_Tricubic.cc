@@ -196,3 +196,24 @@ TEST_CASE("Tricubic: cubicRange holds the interpolant and is the Bernstein hull"
     CHECK(isouq::tricubicRange(sb.data()).first == Approx(0.0).margin(1e-15));
     CHECK(isouq::tricubicRange(sb.data()).second == Approx(4.0 / 3.0).epsilon(1e-15));
 }
+
+TEST_CASE("Tricubic: the float hull is within its stated error of the double hull", "[tricubic][bound]")
+{
+    // roughTricubicRange's contract: each bound within 1e-5 (|lo| + |hi|) of tricubicRange's,
+    // the margin HiddenFeatures.cc's early rejection relies on. Random stencils of several
+    // magnitudes and offsets (CT-like values in the thousands included).
+    std::mt19937 rng(11);
+    for (const double scale : {1e-3, 1.0, 4000.0}) {
+        std::uniform_real_distribution<double> u(-scale, scale);
+        for (int trial = 0; trial < 2000; ++trial) {
+            std::array<float, 64> s;
+            const double offset = u(rng);
+            for (float& v : s) v = float(offset + u(rng));
+            const auto [lo, hi] = isouq::tricubicRange(s.data());
+            const auto [roughLo, roughHi] = isouq::roughTricubicRange(s.data());
+            const double tolerance = 1e-5 * (std::abs(lo) + std::abs(hi));
+            CHECK(std::abs(double(roughLo) - lo) <= tolerance);
+            CHECK(std::abs(double(roughHi) - hi) <= tolerance);
+        }
+    }
+}
