@@ -44,3 +44,15 @@ def scene_delta(before):
 
 def snapshot():
     return set(bpy.data.objects.keys()), set(bpy.data.meshes.keys())
+
+
+def make_box(location, rotation, scale):
+    """The C2 selection box: an empty cube at @location, rotated (Euler) and scaled."""
+    from mathutils import Euler
+    box = bpy.data.objects.new("box", None)
+    box.empty_display_type = "CUBE"
+    box.location, box.rotation_euler, box.scale = location, Euler(rotation), scale
+    bpy.context.collection.objects.link(box)
+    bpy.context.scene.isouq.box = box
+    bpy.context.view_layer.update()
+    return box

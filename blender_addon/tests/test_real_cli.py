@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from mathutils import Euler, Vector
 
+from conftest import make_box
 from isouq import pipeline
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -166,12 +167,7 @@ def test_box_on_a_real_mesh_equals_brute_force(tangle):
     assert bpy.ops.isouq.import_mesh(filepath=tangle["weno"]) == {"FINISHED"}
     obj = bpy.context.active_object
     location, rotation, scale = (0.3, -0.2, 0.1), (0.3, 0.5, -0.7), (0.4, 0.25, 0.6)
-    box = bpy.data.objects.new("box", None)
-    box.empty_display_type = "CUBE"
-    box.location, box.rotation_euler, box.scale = location, Euler(rotation), scale
-    bpy.context.collection.objects.link(box)
-    bpy.context.scene.isouq.box = box
-    bpy.context.view_layer.update()
+    make_box(location, rotation, scale)
     assert bpy.ops.isouq.select_box() == {"FINISHED"}
     axes = Euler(rotation).to_matrix()
     expected = np.array([all(abs((Vector(p) - Vector(location)).dot(axes.col[k])) <= scale[k]

@@ -11,7 +11,7 @@ import pytest
 from mathutils import Euler, Vector
 
 import plyfixture
-from conftest import scene_delta, snapshot
+from conftest import make_box, scene_delta, snapshot
 
 
 @pytest.fixture
@@ -85,15 +85,6 @@ def test_cdf_plot_is_written(sphere):
 
 
 # --- C2 and C5 -----------------------------------------------------------------------------
-
-def make_box(location, rotation, scale):
-    box = bpy.data.objects.new("box", None)
-    box.empty_display_type = "CUBE"
-    box.location, box.rotation_euler, box.scale = location, Euler(rotation), scale
-    bpy.context.collection.objects.link(box)
-    bpy.context.scene.isouq.box = box
-    bpy.context.view_layer.update()
-    return box
 
 
 def brute_force_inside(points, location, rotation, scale):
