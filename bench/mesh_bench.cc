@@ -8,7 +8,9 @@
 // resets the high-water mark (/proc/self/clear_refs "5"), makes one call and reports the rise of
 // VmHWM; the median over several children is given. Triangles per second count a quad of
 // volumeToMesh as two triangles.
+#include "isouq/HiddenFeatures.h"
 #include "isouq/MarchingCubes.h"
+#include "isouq/VolumeSources.h"
 
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
@@ -38,8 +40,10 @@ namespace {
 
 /// isouq's linear pass (positions only), its estimate pass (linear crossings with the paper's
 /// e and e_b: "extraction plus estimate"), its full pass (every method, estimate and difference
-/// per vertex, issue 3), or OpenVDB's volumeToMesh.
-enum class Algo { Isouq, IsouqEstimate, IsouqFull, VolumeToMesh };
+/// per vertex, issue 3), its hidden-feature pass (SPEC §4: standard MC with provenance, then
+/// detection, refinement and merge; positions only, optionally filtered), or OpenVDB's
+/// volumeToMesh.
+enum class Algo { Isouq, IsouqEstimate, IsouqFull, IsouqHidden, IsouqHiddenFiltered, VolumeToMesh };
 
 const char* algoName(Algo a)
 {
@@ -47,6 +51,8 @@ const char* algoName(Algo a)
     case Algo::Isouq: return "linear";
     case Algo::IsouqEstimate: return "estimate";
     case Algo::IsouqFull: return "full";
+    case Algo::IsouqHidden: return "hidden";
+    case Algo::IsouqHiddenFiltered: return "hidden-filter";
     case Algo::VolumeToMesh: break;
     }
     return "vtm";
@@ -54,7 +60,7 @@ const char* algoName(Algo a)
 
 Algo algoFromName(const std::string& s)
 {
-    for (Algo a : {Algo::Isouq, Algo::IsouqEstimate, Algo::IsouqFull})
+    for (Algo a : {Algo::Isouq, Algo::IsouqEstimate, Algo::IsouqFull, Algo::IsouqHidden, Algo::IsouqHiddenFiltered})
         if (s == algoName(a)) return a;
     return Algo::VolumeToMesh;
 }
@@ -64,11 +70,39 @@ struct CallResult {
     std::size_t outputBytes = 0; // positions and index arrays of the result
 };
 
+/// Issue 4's hidden-feature volumes, loaded as `isouq mesh --hidden-features` loads them
+/// (KeepBlocks::CrossingOrHidden): SPEC §5's Teardrop and Tubey at 32^3 with their default
+/// isovalues, and the engine and skull scans at their isovalues of docs/hidden-features.md.
+std::optional<isouq::VolumeRequest> hiddenCase(const std::string& name, const std::string& dataDir)
+{
+    isouq::VolumeRequest request;
+    request.keep = isouq::KeepBlocks::CrossingOrHidden;
+    if (name == "teardrop32" || name == "tubey32") {
+        request.input = "field:" + name.substr(0, name.size() - 2);
+        request.resolution = 32;
+    } else if (name == "engine") {
+        request.input = dataDir + "/engine_256x256x128_uint8.raw";
+        request.isovalue = 71.0f;
+    } else if (name == "skull") {
+        request.input = dataDir + "/skull_64x64x64_float32.raw";
+        request.isovalue = 2.9f;
+    } else {
+        return std::nullopt;
+    }
+    return request;
+}
+
 /// The benchmark volumes: `sphereN` is the level-set sphere of radius 0.4 centred at
 /// (0.5, 0.5, 0.5) with voxel size 1/N; `smoke` is data/smoke.vdb's "density" grid; `tangle32`
-/// is SPEC §5's Tangle sampled at 32^3 on [-1, 1]^3 (the paper's "less than a millisecond").
+/// is SPEC §5's Tangle sampled at 32^3 on [-1, 1]^3 (the paper's "less than a millisecond");
+/// hiddenCase's volumes carry their isovalue as the metadata "bench_isovalue".
 openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dataDir)
 {
+    if (const auto request = hiddenCase(name, dataDir)) {
+        const isouq::LoadedVolume volume = isouq::loadVolume(*request);
+        volume.grid->insertMeta("bench_isovalue", openvdb::FloatMetadata(volume.isovalue));
+        return volume.grid;
+    }
     if (name == "tangle32") {
         const int n = 32;
         const double h = 2.0 / (n - 1);
@@ -99,10 +133,15 @@ openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dat
         if (!grid) throw std::runtime_error("smoke.vdb: grid 'density' is not a float grid");
         return grid;
     }
-    throw std::runtime_error("unknown case " + name + " (sphereN or smoke)");
+    throw std::runtime_error("unknown case " + name +
+                             " (sphereN, smoke, tangle32, teardrop32, tubey32, engine or skull)");
 }
 
-float isovalueOf(const std::string& name) { return name == "smoke" || name == "tangle32" ? 0.1f : 0.0f; }
+float isovalueOf(const std::string& name, const openvdb::FloatGrid& grid)
+{
+    if (const auto k = grid.getMetadata<openvdb::FloatMetadata>("bench_isovalue")) return k->value();
+    return name == "smoke" || name == "tangle32" ? 0.1f : 0.0f;
+}
 
 /// With --reuse, isouq meshes through one IsosurfaceMesher into one Mesh for the whole case,
 /// as an interactive viewer would (DESIGN.md "Memory and allocation").
@@ -114,7 +153,17 @@ struct Reuse {
 CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue, Reuse* reuse = nullptr)
 {
     CallResult r;
-    if (algo != Algo::VolumeToMesh) {
+    if (algo == Algo::IsouqHidden || algo == Algo::IsouqHiddenFiltered) {
+        isouq::MeshSettings settings;
+        settings.isovalue = isovalue;
+        settings.uncertainty = false;
+        isouq::HiddenFeatureSettings hidden;
+        hidden.filter = algo == Algo::IsouqHiddenFiltered;
+        const isouq::Mesh mesh = isouq::extractWithHiddenFeatures(grid, settings, hidden);
+        r.triangles = mesh.triangles.size();
+        r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
+                        mesh.triangles.size() * sizeof(openvdb::Vec3I);
+    } else if (algo != Algo::VolumeToMesh) {
         isouq::MeshSettings settings;
         settings.isovalue = isovalue;
         settings.uncertainty = algo != Algo::Isouq;
@@ -198,7 +247,7 @@ int childMemory(const std::string& caseName, Algo algo, int threads, const std::
         clear << "5"; // resets VmHWM to the current RSS
     }
     const long before = statusKiB("VmHWM");
-    const CallResult r = runOnce(algo, *grid, isovalueOf(caseName));
+    const CallResult r = runOnce(algo, *grid, isovalueOf(caseName, *grid));
     const long after = statusKiB("VmHWM");
     std::printf("%ld %zu\n", after - before, r.outputBytes);
     return 0;
@@ -240,7 +289,7 @@ struct Options {
     int repeats = 7;
     int memoryRuns = 3;
     std::string dataDir = ISOUQ_DATA_DIR;
-    Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full
+    Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-filter
     bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
 };
 
@@ -269,7 +318,8 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--reuse") o.reuse = true;
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
-            if (o.isouqPass == Algo::VolumeToMesh) throw std::runtime_error("--pass takes linear, estimate or full");
+            if (o.isouqPass == Algo::VolumeToMesh)
+                throw std::runtime_error("--pass takes linear, estimate, full, hidden or hidden-filter");
         }
         else if (arg == "--threads") {
             o.threads.clear();
@@ -277,7 +327,7 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full] [--reuse]");
+                                     "[--pass linear|estimate|full|hidden|hidden-filter] [--reuse]");
         }
     }
     return o;
@@ -286,7 +336,7 @@ Options parseOptions(int argc, char** argv)
 void benchCase(const std::string& caseName, const Options& o)
 {
     const openvdb::FloatGrid::Ptr grid = makeGrid(caseName, o.dataDir);
-    const float isovalue = isovalueOf(caseName);
+    const float isovalue = isovalueOf(caseName, *grid);
     const double activeM = double(grid->activeVoxelCount()) * 1e-6;
     for (const int threads : o.threads) {
         const std::string load = loadAverage();
@@ -322,6 +372,50 @@ void benchCase(const std::string& caseName, const Options& o)
     }
 }
 
+bool isHiddenPass(Algo a) { return a == Algo::IsouqHidden || a == Algo::IsouqHiddenFiltered; }
+
+/// --pass hidden|hidden-filter: the hidden-feature pass against plain marching cubes (isouq's
+/// linear pass) and volumeToMesh on the same grid, interleaved; issue 4's goal is at most 3x
+/// plain MC. The flagged fraction and refined cells come from one extra call with statistics.
+void benchHiddenCase(const std::string& caseName, const Options& o)
+{
+    const openvdb::FloatGrid::Ptr grid = makeGrid(caseName, o.dataDir);
+    const float isovalue = isovalueOf(caseName, *grid);
+    isouq::MeshSettings settings;
+    settings.isovalue = isovalue;
+    settings.uncertainty = false;
+    isouq::HiddenFeatureSettings hidden;
+    hidden.filter = o.isouqPass == Algo::IsouqHiddenFiltered;
+    isouq::HiddenFeatureStats stats;
+    isouq::extractWithHiddenFeatures(*grid, settings, hidden, &stats);
+    for (const int threads : o.threads) {
+        const std::string load = loadAverage();
+        const auto control = limitThreads(threads);
+        const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+        const Algo algos[3] = {o.isouqPass, Algo::Isouq, Algo::VolumeToMesh};
+        std::size_t tris[3];
+        for (int a = 0; a < 3; ++a) tris[a] = runOnce(algos[a], *grid, isovalue).triangles; // warm-up
+        std::vector<double> wall[3], cpu[3];
+        for (int r = 0; r < o.repeats; ++r)
+            for (int a = 0; a < 3; ++a) {
+                const double w0 = wallSeconds(), c0 = cpuSeconds();
+                runOnce(algos[a], *grid, isovalue);
+                wall[a].push_back(wallSeconds() - w0);
+                cpu[a].push_back(cpuSeconds() - c0);
+            }
+        double w[3], c[3];
+        for (int a = 0; a < 3; ++a) {
+            w[a] = median(wall[a]);
+            c[a] = median(cpu[a]);
+        }
+        std::printf("| %s | %.1f %% | %zu | %zu | %s%d | %zu | %zu | %.2f | %.2f | %.2f | **%.2f** | %.2f | %.2f | %s |\n",
+            caseName.c_str(), 100.0 * stats.fraction(), stats.cellsRefined, stats.cellsTransition,
+            threads <= 0 ? "default " : "", used, tris[1], tris[0], 1e3 * w[1], 1e3 * w[0], 1e3 * w[2], w[0] / w[1],
+            c[0] / c[1], w[0] / w[2], load.c_str());
+        std::fflush(stdout);
+    }
+}
+
 } // namespace
 
 int main(int argc, char** argv)
@@ -336,6 +430,13 @@ int main(int argc, char** argv)
                     "fresh processes.\n\n",
             (std::string(algoName(o.isouqPass)) + (o.reuse ? ", reused mesher and mesh" : "")).c_str(),
             loadAverage().c_str(), o.repeats, o.memoryRuns);
+        if (isHiddenPass(o.isouqPass)) {
+            std::printf("| case | flagged | refined cells | transition cells | threads | MC tris | hidden tris "
+                        "| MC ms | hidden ms | VtM ms | hidden / MC | CPU hidden / MC | hidden / VtM | load |\n");
+            std::printf("|---|--:|--:|--:|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+            for (const std::string& c : o.cases) benchHiddenCase(c, o);
+            return 0;
+        }
         std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
                     "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "
                     "| mem ratio | load |\n");

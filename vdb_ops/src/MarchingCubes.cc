@@ -12,18 +12,14 @@
 #include "isouq/MarchingCubes.h"
 #include "isouq/McTables.h"
 
+#include "BlockScratch.h"
 #include "MeshVertices.h"
 
 #include <openvdb/thread/Threading.h>
-#include <openvdb/tools/Morphology.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
-
-#ifdef __SSE2__
-#include <emmintrin.h>
-#endif
 
 #include <atomic>
 #include <cmath>
@@ -35,28 +31,7 @@ namespace mc_internal {
 using openvdb::Coord;
 using openvdb::CoordBBox;
 
-constexpr int kBlockDim = 8;
 constexpr int kWords = 3 * 512 / 64; // one bit per (voxel, axis) owned by a block
-
-inline int voxelOffset(int x, int y, int z) { return (x << 6) | (y << 3) | z; }
-
-enum RegionSide : std::uint8_t { kAllOutside = 0, kAllInside = 1, kMixed = 2 };
-
-/// Bit z set when v[z] >= k, for z < n <= 8 (a whole leaf row at once with SSE2).
-inline std::uint32_t insideBits(const float* v, int n, float k)
-{
-#ifdef __SSE2__
-    if (n == kBlockDim) {
-        const __m128 kk = _mm_set1_ps(k);
-        const int lo = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v), kk));
-        const int hi = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v + 4), kk));
-        return std::uint32_t(lo | hi << 4);
-    }
-#endif
-    std::uint32_t bits = 0;
-    for (int z = 0; z < n; ++z) bits |= std::uint32_t(v[z] >= k) << z;
-    return bits;
-}
 
 /// Which edges of a block carry a vertex: bit 3 * voxelOffset + axis. Kept from the count pass
 /// to the fill pass for non-empty blocks only (most blocks of a narrow band are empty).
@@ -85,227 +60,6 @@ struct EdgeMasks {
     const EdgeMask& of(std::int32_t block) const { return masks[std::size_t(slot[std::size_t(block)])]; }
 };
 
-/// One voxel per block (coordinates >> 3), value = block index. Small internal nodes (8^3
-/// children rather than OpenVDB's 32^3 and 16^3) keep a small grid's index to a few pages,
-/// which matters when meshing interactively (page faults are expensive here).
-using BlockIndexTree = openvdb::tree::Tree4<std::int32_t, 3, 3, 3>::Type;
-
-/// The blocks to visit, in a deterministic order, and a lookup from block to index.
-struct BlockSet {
-    std::vector<Coord> origins;
-    BlockIndexTree index{-1};
-
-    std::int32_t find(const Coord& origin) const { return index.getValue(origin >> 3); }
-};
-
-template <typename TreeT>
-void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded)
-{
-    BlockIndexTree& coarse = blocks.index;
-    // Leaves with an active voxel, dilated by one block: cells with an active corner and the
-    // edges they use lie within one voxel of that voxel.
-    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
-        if (!leaf->isEmpty()) coarse.setValueOn(leaf->origin() >> 3, 0);
-    }
-    openvdb::tools::dilateActiveValues(coarse, 1, openvdb::tools::NN_FACE_EDGE_VERTEX,
-        openvdb::tools::IGNORE_TILES, threaded);
-    // Active tiles: only the blocks within one voxel of a tile's border can hold a crossing
-    // between the tile and its surroundings; the tile's interior is constant and is skipped.
-    typename TreeT::ValueOnCIter tile = tree.cbeginValueOn();
-    tile.setMaxDepth(TreeT::ValueOnCIter::LEAF_DEPTH - 1);
-    for (; tile; ++tile) {
-        CoordBBox box;
-        tile.getBoundingBox(box);
-        const Coord lo = box.min() >> 3, hi = box.max() >> 3;
-        coarse.fill(CoordBBox(lo.offsetBy(-1), hi.offsetBy(1)), 0, true);
-        if (hi[0] - lo[0] >= 2 && hi[1] - lo[1] >= 2 && hi[2] - lo[2] >= 2)
-            coarse.fill(CoordBBox(lo.offsetBy(1), hi.offsetBy(-1)), -1, false);
-    }
-    coarse.voxelizeActiveTiles(threaded);
-    std::int32_t next = 0;
-    for (auto leaf = coarse.beginLeaf(); leaf; ++leaf) {
-        for (auto v = leaf->beginValueOn(); v; ++v) {
-            v.setValue(next++);
-            blocks.origins.push_back(v.getCoord() << 3);
-        }
-    }
-}
-
-/// A block's values with a halo, and bit rows (one bit per z) of which voxels are inside
-/// (>= isovalue) and active, and of which cells are meshed and cross. Coordinates are relative
-/// to the block origin and range over [lo, lo + width); everything stays in cache.
-template <typename TreeT>
-class BlockScratch {
-public:
-    using LeafT = typename TreeT::LeafNodeType;
-
-    BlockScratch(const TreeT& tree, const BlockIndexTree& blockIndex, int halo)
-        : mAccessor(tree), mBlockIndex(blockIndex), mLo(-halo), mWidth(kBlockDim + 2 * halo),
-          mValues(std::size_t(mWidth) * mWidth * mWidth), mInsideRows(std::size_t(mWidth) * mWidth),
-          mActiveRows(mInsideRows.size())
-    {
-    }
-
-    int index(int x, int y, int z) const { return ((x - mLo) * mWidth + (y - mLo)) * mWidth + (z - mLo); }
-    float value(int x, int y, int z) const { return mValues[index(x, y, z)]; }
-    bool isActive(int x, int y, int z) const { return (activeRow(x, y) >> (z - mLo)) & 1u; }
-
-    /// Which side of the isovalue the 8^3 region at @a origin lies on: a cheap summary that lets
-    /// a block whose whole neighbourhood is on one side be skipped without gathering it.
-    std::uint8_t regionSide(const Coord& origin, float isovalue)
-    {
-        if (const LeafT* leaf = mAccessor.probeConstLeaf(origin)) {
-            const float* v = leaf->buffer().data();
-            unsigned inside = 0;
-            for (int i = 0; i < 512; ++i) inside += v[i] >= isovalue;
-            return inside == 0 ? kAllOutside : inside == 512 ? kAllInside : kMixed;
-        }
-        return mAccessor.getValue(origin) >= isovalue ? kAllInside : kAllOutside;
-    }
-
-    /// False when every region the gather would read is on the same side of the isovalue.
-    bool mayCross(const Coord& origin, float isovalue, const std::vector<std::uint8_t>& sides)
-    {
-        int seen = -1;
-        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
-            for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) {
-                    const Coord o = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
-                    const std::int32_t b = mBlockIndex.getValue(o >> 3);
-                    const int side = b >= 0 ? sides[std::size_t(b)] : regionSide(o, isovalue);
-                    if (side == kMixed || (seen >= 0 && side != seen)) return true;
-                    seen = side;
-                }
-        return false;
-    }
-
-    /// Copies values and active states of [lo, lo + width)^3 around @a origin, one leaf probe
-    /// per neighbouring block (a missing leaf is a constant tile or background), and classifies
-    /// the cells with minimum corner in [-1, 8)^3: a cell is a candidate when it is meshed (an
-    /// active corner, minimum corner inside @a cellBox if given) and its corners straddle k.
-    /// Returns false when no cell crosses.
-    bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
-    {
-        std::fill(mInsideRows.begin(), mInsideRows.end(), 0u);
-        std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
-        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
-            for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
-                    gatherNeighbour(origin, bx, by, bz, isovalue);
-        return classify(origin, cellBox);
-    }
-
-    /// Bits z + 1 of the candidate cells (x, y, -1..7), for x, y in [-1, 8).
-    std::uint32_t cellRow(int x, int y) const { return mCellRows[(x + 1) * 9 + (y + 1)]; }
-
-    /// The marching-cubes case of cell (x, y, z), from the inside bit rows.
-    int cubeCase(int x, int y, int z) const
-    {
-        const int shift = z - mLo;
-        const std::uint32_t r00 = insideRow(x, y) >> shift, r10 = insideRow(x + 1, y) >> shift;
-        const std::uint32_t r11 = insideRow(x + 1, y + 1) >> shift, r01 = insideRow(x, y + 1) >> shift;
-        return int((r00 & 1) | (r10 & 1) << 1 | (r11 & 1) << 2 | (r01 & 1) << 3 | (r00 & 2) << 3 |
-                   (r10 & 2) << 4 | (r11 & 2) << 5 | (r01 & 2) << 6);
-    }
-
-private:
-    using Index = openvdb::Index;
-
-    int firstBlock() const { return (mLo - (kBlockDim - 1)) / kBlockDim; } // floor(lo / 8)
-    int lastBlock() const { return (mLo + mWidth - 1) / kBlockDim; }
-    std::uint32_t insideRow(int x, int y) const { return mInsideRows[(x - mLo) * mWidth + (y - mLo)]; }
-    std::uint32_t activeRow(int x, int y) const { return mActiveRows[(x - mLo) * mWidth + (y - mLo)]; }
-
-    void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
-    {
-        // Locals, not members, in the loops: stores to the uint32 rows could alias the ints.
-        const int lo = mLo, width = mWidth, hi = lo + width;
-        const int x0 = std::max(lo, bx * kBlockDim), x1 = std::min(hi, (bx + 1) * kBlockDim);
-        const int y0 = std::max(lo, by * kBlockDim), y1 = std::min(hi, (by + 1) * kBlockDim);
-        const int z0 = std::max(lo, bz * kBlockDim), z1 = std::min(hi, (bz + 1) * kBlockDim);
-        if (x0 >= x1 || y0 >= y1 || z0 >= z1) return;
-        const int zCount = z1 - z0, zShift = z0 - lo;
-        const std::uint32_t zRun = (1u << zCount) - 1u;
-        float* values = mValues.data();
-        std::uint32_t* insideRows = mInsideRows.data();
-        std::uint32_t* activeRows = mActiveRows.data();
-        const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
-        if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
-            const float* buffer = leaf->buffer().data();
-            const auto& mask = leaf->getValueMask();
-            for (int x = x0; x < x1; ++x)
-                for (int y = y0; y < y1; ++y) {
-                    const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
-                    const int row = (x - lo) * width + (y - lo);
-                    float* dst = values + row * width + zShift;
-                    std::copy_n(buffer + src, zCount, dst);
-                    // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
-                    const bool cellRow = x >= -1 && x <= kBlockDim && y >= -1 && y <= kBlockDim;
-                    const std::uint32_t inside = cellRow ? insideBits(dst, zCount, isovalue) : 0u;
-                    // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
-                    const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
-                    const std::uint32_t active = std::uint32_t(word >> (src & 63)) & zRun;
-                    insideRows[row] |= inside << zShift;
-                    activeRows[row] |= active << zShift;
-                }
-        } else {
-            float tileValue;
-            const bool tileActive = mAccessor.probeValue(nOrigin, tileValue);
-            const std::uint32_t inside = tileValue >= isovalue ? zRun << zShift : 0u;
-            const std::uint32_t active = tileActive ? zRun << zShift : 0u;
-            for (int x = x0; x < x1; ++x)
-                for (int y = y0; y < y1; ++y) {
-                    const int row = (x - lo) * width + (y - lo);
-                    std::fill_n(values + row * width + zShift, zCount, tileValue);
-                    insideRows[row] |= inside;
-                    activeRows[row] |= active;
-                }
-        }
-    }
-
-    bool classify(const Coord& origin, const std::optional<CoordBBox>& cellBox)
-    {
-        // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1; shift so cell z = -1 is bit 0.
-        const int shift = -1 - mLo;
-        std::uint32_t cellMask = (1u << (kBlockDim + 1)) - 1u;
-        int xLo = -1, xHi = kBlockDim - 1, yLo = -1, yHi = kBlockDim - 1;
-        if (cellBox) {
-            const Coord lo = cellBox->min() - origin, hi = cellBox->max() - origin;
-            xLo = std::max(xLo, lo[0]), xHi = std::min(xHi, hi[0]);
-            yLo = std::max(yLo, lo[1]), yHi = std::min(yHi, hi[1]);
-            const int zLo = std::max(-1, lo[2]), zHi = std::min(kBlockDim - 1, hi[2]);
-            cellMask = zLo > zHi ? 0u : (((2u << (zHi + 1)) - 1u) & ~((1u << (zLo + 1)) - 1u));
-        }
-        bool any = false;
-        for (int x = -1; x < kBlockDim; ++x)
-            for (int y = -1; y < kBlockDim; ++y) {
-                std::uint32_t cells = 0;
-                if (x >= xLo && x <= xHi && y >= yLo && y <= yHi) {
-                    const std::uint32_t in4 = insideRow(x, y) & insideRow(x + 1, y) &
-                                              insideRow(x, y + 1) & insideRow(x + 1, y + 1);
-                    const std::uint32_t any4 = insideRow(x, y) | insideRow(x + 1, y) |
-                                               insideRow(x, y + 1) | insideRow(x + 1, y + 1);
-                    const std::uint32_t act4 = activeRow(x, y) | activeRow(x + 1, y) |
-                                               activeRow(x, y + 1) | activeRow(x + 1, y + 1);
-                    const std::uint32_t allIn = (in4 & (in4 >> 1)) >> shift;
-                    const std::uint32_t anyIn = (any4 | (any4 >> 1)) >> shift;
-                    const std::uint32_t active = (act4 | (act4 >> 1)) >> shift;
-                    cells = anyIn & ~allIn & active & cellMask;
-                }
-                mCellRows[(x + 1) * 9 + (y + 1)] = cells;
-                any |= cells != 0;
-            }
-        return any;
-    }
-
-    openvdb::tree::ValueAccessor<const TreeT> mAccessor;
-    openvdb::tree::ValueAccessor<const BlockIndexTree> mBlockIndex;
-    int mLo, mWidth;
-    std::vector<float> mValues;
-    std::vector<std::uint32_t> mInsideRows; // per (x, y): bit z - lo set when value >= isovalue
-    std::vector<std::uint32_t> mActiveRows; // per (x, y): bit z - lo set when active
-    std::array<std::uint32_t, 81> mCellRows{}; // per cell row (x, y) in [-1, 8)^2: candidates
-};
 
 /// Calls @a body(x, y, z, cubeCase) for each candidate cell with x, y, z >= @a from (-1 or 0).
 template <typename ScratchT, typename Body>

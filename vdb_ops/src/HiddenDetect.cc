@@ -1,0 +1,529 @@
+// isouq: which cells the hidden-feature pass refines (paper sec. 4.2; SPEC §4;
+// docs/hidden-features.md "Detection").
+//
+// Per 8^3 block holding a meshed cell (in parallel; the result is in block order), the block's
+// values are gathered with a halo of two (BlockScratch.h) and turned into bit rows along z: the
+// slope rule flags a cell when one of its 12 edges' three slopes rise and fall. A flagged cell
+// whose 18 face and edge neighbours are meshed is refined when the tricubic interpolant crosses k
+// in it (and, with the filter, reveals a sign its corners hide). Deciding that means refining
+// the cell; cheap bounds settle almost every cell first, each one exact (it never rejects a cell
+// the refinement would keep):
+//   Lebesgue:  the tricubic stays within 1.25^3 times the stencil's half range of its mid range;
+//   curvature: it differs from the trilinear interpolant by at most c1 (1.25^2 S_x + 1.25 S_y +
+//              S_z), c1 = 1 / (9 sqrt 3), S_a the largest sums of two |second differences| along
+//              a (the cubic's error term), and the trilinear one keeps the corners' margin to k;
+//   Bernstein: the hull of the 64 Bernstein coefficients, in float and then in double.
+#include "HiddenInternal.h"
+
+#include "isouq/Tricubic.h"
+
+#include <tbb/enumerable_thread_specific.h>
+
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
+#include <algorithm>
+#include <cmath>
+
+namespace isouq {
+namespace hidden_internal {
+namespace {
+
+/// max over t in [0, 1] of t (1 - t) (2 - t) / 6: |cubic - linear| <= c1 (|D0| + |D1|) on an
+/// interval whose two second differences are D0 and D1.
+constexpr float kCubicErrorConstant = 0.0641500299f;
+/// Relative slack of the float bounds (their rounding is below 1e-5 of the stencil's magnitude).
+constexpr double kBoundSlack = 1e-4;
+
+/// Bits i < n <= 12 where a[i] > b[i] (rise) and a[i] < b[i] (fall): the signs of a - b.
+inline void compareRows(const float* a, const float* b, int n, std::uint32_t& rise, std::uint32_t& fall)
+{
+    rise = fall = 0;
+#ifdef __SSE2__
+    for (int i = 0; i < n; i += 4) { // reads up to 3 values past n (BlockScratch's padding)
+        const __m128 va = _mm_loadu_ps(a + i), vb = _mm_loadu_ps(b + i);
+        rise |= std::uint32_t(_mm_movemask_ps(_mm_cmpgt_ps(va, vb))) << i;
+        fall |= std::uint32_t(_mm_movemask_ps(_mm_cmplt_ps(va, vb))) << i;
+    }
+    rise &= (1u << n) - 1u;
+    fall &= (1u << n) - 1u;
+#else
+    for (int i = 0; i < n; ++i) {
+        rise |= std::uint32_t(a[i] > b[i]) << i;
+        fall |= std::uint32_t(a[i] < b[i]) << i;
+    }
+#endif
+}
+
+/// A block's values [-2, 10)^3 and what detection derives from them. Per-cell states are rows of
+/// bits along z: bit z + 1 for z in [-1, 10), or bit z for the block's cells z in [0, 8).
+class DetectWindow {
+public:
+    DetectWindow(const openvdb::FloatTree& tree, const BlockIndexTree& index) : mBlock(tree, index, 2) {}
+
+    void gather(const Coord& origin, float k)
+    {
+        mBlock.gather(origin, k);
+        slopeRows();
+        stateRows();
+        mHaveRanges = mHaveCurvature = false;
+    }
+
+    /// Bits z of the block's cells (x, y, 0..7) that the slope rule flags (SPEC §4): a cell turns
+    /// when one of its 12 edges does, and an edge when its three slopes rise and fall.
+    std::uint32_t turningCells(int x, int y) const
+    {
+        auto edges = [this](int axis, int ex, int ey) { // bits z of the edges (ex, ey, z) that turn
+            std::uint32_t rise, fall;
+            if (axis == 2) {
+                const std::uint32_t r = mRise[2][ex + 1][ey + 1], f = mFall[2][ex + 1][ey + 1];
+                rise = r | r >> 1 | r >> 2; // slopes z - 1, z, z + 1 at bits z, z + 1, z + 2
+                fall = f | f >> 1 | f >> 2;
+            } else {
+                const int dx = axis == 0, dy = axis == 1;
+                rise = fall = 0;
+                for (int s = -1; s <= 1; ++s) {
+                    rise |= mRise[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
+                    fall |= mFall[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
+                }
+            }
+            return rise & fall;
+        };
+        const std::uint32_t alongZ = edges(2, x, y) | edges(2, x + 1, y) | edges(2, x, y + 1) | edges(2, x + 1, y + 1);
+        const std::uint32_t across = edges(0, x, y) | edges(0, x, y + 1) | edges(1, x, y) | edges(1, x + 1, y);
+        return (alongZ | across | across >> 1) & 0xffu;
+    }
+    /// Bits z of the block's cells (x, y, 0..7) that are meshed (an active corner, SPEC §1).
+    std::uint32_t meshedCells(int x, int y) const { return (mMeshed[x + 1][y + 1] >> 1) & 0xffu; }
+    /// Bits z of the block's cells (x, y, 0..7) whose 18 face and edge neighbours are meshed.
+    std::uint32_t meshedAround(int x, int y) const
+    {
+        std::uint32_t all = ~0u;
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy) {
+                const std::uint32_t r = mMeshed[x + dx + 1][y + dy + 1];
+                all &= dx != 0 && dy != 0 ? r >> 1 : r & r >> 1 & r >> 2;
+            }
+        return all & 0xffu;
+    }
+    /// Bits z of the block's cells (x, y, 0..7) whose corners lie on both sides of k.
+    std::uint32_t straddlingCells(int x, int y) const
+    {
+        std::uint32_t in = ~0u, out = ~0u;
+        for (int dx = 0; dx <= 1; ++dx)
+            for (int dy = 0; dy <= 1; ++dy) {
+                in &= mInside[x + dx + 1][y + dy + 1];
+                out &= ~mInside[x + dx + 1][y + dy + 1];
+            }
+        return ~((in & in >> 1) | (out & out >> 1)) >> 1 & 0xffu;
+    }
+
+    float value(int x, int y, int z) const { return mBlock.value(x, y, z); }
+    /// The 4x4x4 stencil of the cell (x, y, z) (Tricubic.h layout).
+    void stencil(int x, int y, int z, float* out) const
+    {
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) std::copy_n(rowFrom(x + a - 1, y + b - 1, z - 1), 4, out + 16 * a + 4 * b);
+    }
+
+    /// The least and greatest value of the stencil of the cell (x, y, z) (computed for the
+    /// whole block at the first call, separably: z, then y, then x).
+    float stencilLow(int x, int y, int z)
+    {
+        if (!mHaveRanges) stencilRanges();
+        return mLow[x][y][z];
+    }
+    float stencilHigh(int x, int y, int z)
+    {
+        if (!mHaveRanges) stencilRanges();
+        return mHigh[x][y][z];
+    }
+    /// Slack for the float bounds of the cell (x, y, z) (kBoundSlack of its stencil's size).
+    double boundSlack(int x, int y, int z, double k)
+    {
+        return kBoundSlack * (std::abs(double(stencilLow(x, y, z))) + std::abs(double(stencilHigh(x, y, z))) + std::abs(k));
+    }
+
+    /// How far the tricubic can stray from the trilinear interpolant in the cell (x, y, z).
+    float cellReach(int x, int y, int z)
+    {
+        if (!mHaveCurvature) curvature();
+        return mReach[x][y][z];
+    }
+    /// How far the cubic along the edge from voxel @a v along @a axis can stray from the line.
+    float edgeReach(const Coord& v, int axis)
+    {
+        if (!mHaveCurvature) curvature();
+        Coord w = v;
+        w[axis] += 1;
+        return kCubicErrorConstant * (second(axis, v) + second(axis, w));
+    }
+    /// How far the bicubic on the cell face through voxel @a v (the face's lowest corner) across
+    /// @a normal can stray from the bilinear interpolant: (P_u - L_u) P_v + L_u (P_v - L_v), the
+    /// smaller of the two orders of the free axes u and v.
+    float faceReach(const Coord& v, int normal)
+    {
+        if (!mHaveCurvature) curvature();
+        const int a = (normal + 1) % 3, b = (normal + 2) % 3;
+        return std::min(faceReach(v, a, b), faceReach(v, b, a));
+    }
+
+private:
+    /// The row (x, y) from z on.
+    const float* rowFrom(int x, int y, int z) const { return mBlock.row(x, y) + (z - mBlock.lo()); }
+
+    /// |second difference| along @a axis at voxel @a v in [-1, 10)^3 (along the axis [-1, 9)).
+    float second(int axis, const Coord& v) const { return mSecond[axis][v[0] + 1][v[1] + 1][v[2] + 1]; }
+
+    float faceReach(const Coord& v, int u, int w) const
+    {
+        float acrossU[2] = {0.0f, 0.0f}; // per u node: max |D_u| over the four w nodes
+        float alongW = 0.0f;             // max over the u nodes of |D_w| at both w nodes
+        for (int i = 0; i < 2; ++i) {
+            Coord p = v;
+            p[u] += i;
+            for (int j = -1; j <= 2; ++j) {
+                Coord q = p;
+                q[w] += j;
+                acrossU[i] = std::max(acrossU[i], second(u, q));
+            }
+            Coord q = p;
+            q[w] += 1;
+            alongW = std::max(alongW, second(w, p) + second(w, q));
+        }
+        return kCubicErrorConstant * (1.25f * (acrossU[0] + acrossU[1]) + alongW);
+    }
+
+    /// Sign rows of the slopes f(v + e_axis) - f(v): [axis][x + 1][y + 1], bit z + 1, for v in
+    /// [-1, 9)^3.
+    void slopeRows()
+    {
+        for (int axis = 0; axis < 3; ++axis)
+            for (int x = -1; x < 9; ++x)
+                for (int y = -1; y < 9; ++y)
+                    compareRows(rowFrom(x + (axis == 0), y + (axis == 1), -1 + (axis == 2)), rowFrom(x, y, -1), 10,
+                        mRise[axis][x + 1][y + 1], mFall[axis][x + 1][y + 1]);
+    }
+
+    /// Inside rows of the voxels [-1, 9)^2 and meshed rows of the cells [-1, 9)^2, bit z + 1.
+    void stateRows()
+    {
+        for (int x = -1; x < 9; ++x)
+            for (int y = -1; y < 9; ++y) {
+                mInside[x + 1][y + 1] = mBlock.insideRow(x, y) >> 1;
+                const std::uint32_t r = mBlock.activeRow(x, y) | mBlock.activeRow(x + 1, y) |
+                                        mBlock.activeRow(x, y + 1) | mBlock.activeRow(x + 1, y + 1);
+                mMeshed[x + 1][y + 1] = ((r | r >> 1) >> 1) & 0x3ffu;
+            }
+    }
+
+    void stencilRanges()
+    {
+        float lo[11][11][kBlockDim], hi[11][11][kBlockDim];
+        for (int x = 0; x < 11; ++x)
+            for (int y = 0; y < 11; ++y) {
+                const float* row = rowFrom(x - 1, y - 1, -1);
+                for (int z = 0; z < kBlockDim; ++z) {
+                    lo[x][y][z] = std::min(std::min(row[z], row[z + 1]), std::min(row[z + 2], row[z + 3]));
+                    hi[x][y][z] = std::max(std::max(row[z], row[z + 1]), std::max(row[z + 2], row[z + 3]));
+                }
+            }
+        for (int x = 0; x < 11; ++x)
+            for (int y = 0; y < kBlockDim; ++y)
+                for (int z = 0; z < kBlockDim; ++z) {
+                    lo[x][y][z] = std::min(std::min(lo[x][y][z], lo[x][y + 1][z]), std::min(lo[x][y + 2][z], lo[x][y + 3][z]));
+                    hi[x][y][z] = std::max(std::max(hi[x][y][z], hi[x][y + 1][z]), std::max(hi[x][y + 2][z], hi[x][y + 3][z]));
+                }
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y)
+                for (int z = 0; z < kBlockDim; ++z) {
+                    mLow[x][y][z] = std::min(std::min(lo[x][y][z], lo[x + 1][y][z]), std::min(lo[x + 2][y][z], lo[x + 3][y][z]));
+                    mHigh[x][y][z] = std::max(std::max(hi[x][y][z], hi[x + 1][y][z]), std::max(hi[x + 2][y][z], hi[x + 3][y][z]));
+                }
+        mHaveRanges = true;
+    }
+
+    /// |Second differences| along each axis over [-1, 10)^3 (along the axis [-1, 9)), and
+    /// cellReach of every cell of the block from their separable maxima.
+    void curvature()
+    {
+        for (int x = -1; x < 10; ++x)
+            for (int y = -1; y < 10; ++y) {
+                const float* c = rowFrom(x, y, -1);
+                float* dz = mSecond[2][x + 1][y + 1];
+                for (int z = 0; z < 10; ++z) dz[z] = std::abs(c[z - 1] - 2.0f * c[z] + c[z + 1]);
+                if (x < 9) {
+                    const float *m = rowFrom(x - 1, y, -1), *p = rowFrom(x + 1, y, -1);
+                    float* dx = mSecond[0][x + 1][y + 1];
+                    for (int z = 0; z < 11; ++z) dx[z] = std::abs(m[z] - 2.0f * c[z] + p[z]);
+                }
+                if (y < 9) {
+                    const float *m = rowFrom(x, y - 1, -1), *p = rowFrom(x, y + 1, -1);
+                    float* dy = mSecond[1][x + 1][y + 1];
+                    for (int z = 0; z < 11; ++z) dy[z] = std::abs(m[z] - 2.0f * c[z] + p[z]);
+                }
+            }
+        // S_x: per x node (0..8), the max of |D_x| over the cell's 4x4 (y, z) window.
+        float windowZ[9][11][kBlockDim], acrossX[9][kBlockDim][kBlockDim];
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < 11; ++y) {
+                const float* d = mSecond[0][x + 1][y];
+                for (int z = 0; z < kBlockDim; ++z)
+                    windowZ[x][y][z] = std::max(std::max(d[z], d[z + 1]), std::max(d[z + 2], d[z + 3]));
+            }
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < kBlockDim; ++y)
+                for (int z = 0; z < kBlockDim; ++z)
+                    acrossX[x][y][z] = std::max(std::max(windowZ[x][y][z], windowZ[x][y + 1][z]),
+                        std::max(windowZ[x][y + 2][z], windowZ[x][y + 3][z]));
+        // S_y: per (x, y) node, the max of |D_y| over the cell's four z nodes.
+        float acrossY[9][9][kBlockDim];
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < 9; ++y) {
+                const float* d = mSecond[1][x + 1][y + 1];
+                for (int z = 0; z < kBlockDim; ++z)
+                    acrossY[x][y][z] = std::max(std::max(d[z], d[z + 1]), std::max(d[z + 2], d[z + 3]));
+            }
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y) {
+                const float *z00 = mSecond[2][x + 1][y + 1] + 1, *z10 = mSecond[2][x + 2][y + 1] + 1;
+                const float *z01 = mSecond[2][x + 1][y + 2] + 1, *z11 = mSecond[2][x + 2][y + 2] + 1;
+                for (int z = 0; z < kBlockDim; ++z) {
+                    const float sx = acrossX[x][y][z] + acrossX[x + 1][y][z];
+                    const float sy = std::max(acrossY[x][y][z] + acrossY[x][y + 1][z],
+                        acrossY[x + 1][y][z] + acrossY[x + 1][y + 1][z]);
+                    const float sz = std::max(std::max(z00[z] + z00[z + 1], z10[z] + z10[z + 1]),
+                        std::max(z01[z] + z01[z + 1], z11[z] + z11[z + 1]));
+                    mReach[x][y][z] = kCubicErrorConstant * (1.5625f * sx + 1.25f * sy + sz);
+                }
+            }
+        mHaveCurvature = true;
+    }
+
+    mc_internal::BlockScratch<openvdb::FloatTree> mBlock;
+    std::uint32_t mRise[3][10][10], mFall[3][10][10];
+    std::uint32_t mInside[10][10], mMeshed[10][10];
+    bool mHaveRanges = false, mHaveCurvature = false;
+    float mLow[kBlockDim][kBlockDim][kBlockDim], mHigh[kBlockDim][kBlockDim][kBlockDim];
+    float mSecond[3][11][11][11];
+    float mReach[kBlockDim][kBlockDim][kBlockDim];
+};
+
+/// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
+inline std::uint32_t boxRow(const std::optional<CoordBBox>& box, const Coord& origin, int x, int y, int lo, int hi)
+{
+    if (!box) return 0xffu;
+    const Coord c = origin.offsetBy(x, y, 0);
+    for (int a = 0; a < 2; ++a)
+        if (c[a] + lo < box->min()[a] || c[a] + hi > box->max()[a]) return 0;
+    std::uint32_t bits = 0;
+    for (int z = 0; z < kBlockDim; ++z)
+        bits |= std::uint32_t(c[2] + z + lo >= box->min()[2] && c[2] + z + hi <= box->max()[2]) << z;
+    return bits;
+}
+
+/// Index of sub-point (p, q, r) in refineCell's output.
+inline std::size_t subIndex(int p, int q, int r, int n) { return std::size_t((p * n + q) * n + r); }
+
+/// Whether the subdivision values lie on both sides of k (the tricubic surface passes through).
+bool crosses(const std::vector<double>& sub, double k)
+{
+    bool in = false, out = false;
+    for (double v : sub) (v >= k ? in : out) = true;
+    return in && out;
+}
+
+/// The filter: some element of the cell (the cell, a face or an edge) has all its corners on one
+/// side of k and a subdivision value on the other: the tricubic shows what the corners hide.
+bool reveals(const std::vector<double>& sub, int m, double k)
+{
+    const int n = m + 1;
+    // Each axis of an element is fixed at 0, fixed at m, or free (0..m); corners are skipped.
+    for (int sx = 0; sx < 3; ++sx)
+        for (int sy = 0; sy < 3; ++sy)
+            for (int sz = 0; sz < 3; ++sz) {
+                if (sx < 2 && sy < 2 && sz < 2) continue;
+                const int s[3] = {sx, sy, sz};
+                int lo[3], hi[3];
+                for (int a = 0; a < 3; ++a) {
+                    lo[a] = s[a] == 1 ? m : 0;
+                    hi[a] = s[a] == 0 ? 0 : m;
+                }
+                int corners = 0, inside = 0;
+                for (int p = lo[0]; p <= hi[0]; p += m)
+                    for (int q = lo[1]; q <= hi[1]; q += m)
+                        for (int r = lo[2]; r <= hi[2]; r += m) {
+                            ++corners;
+                            inside += sub[subIndex(p, q, r, n)] >= k;
+                        }
+                if (inside != 0 && inside != corners) continue;
+                const bool cornersInside = inside != 0;
+                for (int p = lo[0]; p <= hi[0]; ++p)
+                    for (int q = lo[1]; q <= hi[1]; ++q)
+                        for (int r = lo[2]; r <= hi[2]; ++r)
+                            if ((sub[subIndex(p, q, r, n)] >= k) != cornersInside) return true;
+            }
+    return false;
+}
+
+/// Whether the Bernstein hull [lo, hi] (cubicRange, Tricubic.h) lets the interpolant reach both
+/// sides of k; the slack covers rounding, so a false answer is exact.
+inline bool mayCross(const std::pair<double, double>& range, double k)
+{
+    const double slack = 1e-9 * (std::abs(range.first) + std::abs(range.second) + std::abs(k));
+    return range.first - slack < k && range.second + slack >= k;
+}
+
+/// reveals() for the cell (x, y, z) of @a w whose corners straddle k (the cell itself then hides
+/// nothing), without refining all of it: an edge or face whose corners lie on one side is
+/// evaluated only when its curvature bound and then the Bernstein hull of its grid line or plane
+/// reach k. The values are refineCell's (Tricubic.h), so the answer is reveals()'.
+bool boundaryReveals(DetectWindow& w, int x, int y, int z, const float* stencil,
+    const std::vector<CubicWeights>& weights, int m, double k)
+{
+    bool cornerInside[2][2][2];
+    double cornerMargin[2][2][2];
+    for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b)
+            for (int c = 0; c < 2; ++c) {
+                const double v = double(stencil[16 * (1 + a) + 4 * (1 + b) + 1 + c]);
+                cornerInside[a][b][c] = v >= k;
+                cornerMargin[a][b][c] = std::abs(v - k);
+            }
+    const double slack = w.boundSlack(x, y, z, k);
+    for (int sx = 0; sx < 3; ++sx)
+        for (int sy = 0; sy < 3; ++sy)
+            for (int sz = 0; sz < 3; ++sz) {
+                const int s[3] = {sx, sy, sz};
+                const int free = (sx == 2) + (sy == 2) + (sz == 2);
+                if (free == 0 || free == 3) continue;
+                int node[3], local[3][2];
+                for (int a = 0; a < 3; ++a) { // first stencil index and sub-point range per axis
+                    node[a] = s[a] == 2 ? 0 : 1 + s[a];
+                    local[a][0] = s[a] == 1 ? m : 0;
+                    local[a][1] = s[a] == 0 ? 0 : m;
+                }
+                int corners = 0, inside = 0;
+                double margin = std::numeric_limits<double>::max();
+                for (int a = s[0] == 1; a <= (s[0] != 0); ++a)
+                    for (int b = s[1] == 1; b <= (s[1] != 0); ++b)
+                        for (int c = s[2] == 1; c <= (s[2] != 0); ++c) {
+                            ++corners;
+                            inside += cornerInside[a][b][c];
+                            margin = std::min(margin, cornerMargin[a][b][c]);
+                        }
+                if (inside != 0 && inside != corners) continue;
+                // The element's lowest corner, and its free axis (edge) or fixed axis (face).
+                const Coord low(x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1));
+                int axis = 0;
+                while ((s[axis] == 2) != (free == 1)) ++axis;
+                const float reach = free == 1 ? w.edgeReach(low, axis) : w.faceReach(low, axis);
+                if (margin > double(reach) + slack) continue;
+                std::ptrdiff_t strides[2];
+                int dims = 0;
+                for (int a = 0; a < 3; ++a)
+                    if (s[a] == 2) strides[dims++] = a == 0 ? 16 : a == 1 ? 4 : 1;
+                if (!mayCross(cubicRange(stencil + 16 * node[0] + 4 * node[1] + node[2], strides, dims), k)) continue;
+                const bool cornersInside = inside != 0;
+                for (int p = local[0][0]; p <= local[0][1]; ++p)
+                    for (int q = local[1][0]; q <= local[1][1]; ++q)
+                        for (int r = local[2][0]; r <= local[2][1]; ++r)
+                            if ((tricubic(stencil, weights[std::size_t(p)], weights[std::size_t(q)],
+                                     weights[std::size_t(r)]) >= k) != cornersInside)
+                                return true;
+            }
+    return false;
+}
+
+/// Whether the tricubic of the non-straddling cell (x, y, z) may cross k, by the Lebesgue and
+/// curvature bounds (exact: false only when the refinement would find no crossing).
+bool mayCrossBounded(DetectWindow& w, int x, int y, int z, double k)
+{
+    const double lo = w.stencilLow(x, y, z), hi = w.stencilHigh(x, y, z);
+    // Lebesgue: within 1.25^3 times the stencil's half range of the stencil's mid range.
+    const double mid = 0.5 * (lo + hi), reach = 1.953125 * 0.5 * (hi - lo);
+    if (std::abs(k - mid) > reach) return false;
+    // Curvature: the trilinear interpolant keeps the corners' least distance to k.
+    double margin = std::numeric_limits<double>::max();
+    for (int c = 0; c < 8; ++c) margin = std::min(margin, std::abs(double(w.value(x + (c >> 2), y + (c >> 1 & 1), z + (c & 1))) - k));
+    return margin <= double(w.cellReach(x, y, z)) + w.boundSlack(x, y, z, k);
+}
+
+} // namespace
+
+Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blocks, float k,
+    const std::optional<CoordBBox>& dataBounds, const HiddenFeatureSettings& hidden, bool threaded,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    const int m = hidden.subdivisions;
+    struct BlockResult {
+        std::size_t total = 0, flagged = 0;
+        std::vector<Coord> refined;
+    };
+    std::vector<BlockResult> results(blocks.origins.size());
+    struct Scratch {
+        DetectWindow window;
+        TricubicWorkspace workspace;
+        std::vector<double> sub;
+        std::vector<CubicWeights> weights;
+    };
+    std::vector<CubicWeights> weights;
+    for (int s = 0; s <= m; ++s) weights.push_back(cubicWeights(s, m));
+    tbb::enumerable_thread_specific<Scratch> scratches(
+        [&] { return Scratch{DetectWindow(tree, blocks.index), {}, {}, weights}; });
+    forEach(blocks.origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
+        const Coord& origin = blocks.origins[b];
+        Scratch& scratch = scratches.local();
+        DetectWindow& w = scratch.window;
+        w.gather(origin, k);
+        BlockResult& out = results[b];
+        float stencil[64];
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y) {
+                const std::uint32_t cells = w.meshedCells(x, y) & boxRow(dataBounds, origin, x, y, 0, 1);
+                out.total += std::size_t(__builtin_popcount(cells));
+                // The rule reads one voxel beyond each edge: cells whose stencil leaves the data are
+                // never flagged.
+                std::uint32_t flagged = cells & boxRow(dataBounds, origin, x, y, -1, 2) & w.turningCells(x, y);
+                out.flagged += std::size_t(__builtin_popcount(flagged));
+                // Transition cells must be meshed too, so the refinement stops one cell short of the
+                // border of the active region (where a sparse surface ends anyway).
+                flagged &= w.meshedAround(x, y);
+                const std::uint32_t straddling = w.straddlingCells(x, y);
+                for (; flagged; flagged &= flagged - 1) {
+                    const int z = __builtin_ctz(flagged);
+                    if ((straddling >> z) & 1u) {
+                        if (hidden.filter) {
+                            w.stencil(x, y, z, stencil);
+                            if (!boundaryReveals(w, x, y, z, stencil, scratch.weights, m, k)) continue;
+                        }
+                    } else {
+                        if (!mayCrossBounded(w, x, y, z, k)) continue;
+                        w.stencil(x, y, z, stencil);
+                        // The float hull first: its margin (100x its rounding, Tricubic.h, plus
+                        // mayCross's slack) leaves every decision to the double hull's.
+                        const auto rough = roughTricubicRange(stencil);
+                        const double margin = 1e-3 * (std::abs(double(w.stencilLow(x, y, z))) +
+                                                         std::abs(double(w.stencilHigh(x, y, z))) + std::abs(double(k)));
+                        if (double(rough.first) - margin >= k || double(rough.second) + margin < k) continue;
+                        if (!mayCross(tricubicRange(stencil), double(k))) continue;
+                        refineCell(stencil, m, scratch.sub, scratch.workspace);
+                        if (!crosses(scratch.sub, k)) continue;
+                        if (hidden.filter && !reveals(scratch.sub, m, k)) continue;
+                    }
+                    out.refined.push_back(origin.offsetBy(x, y, z));
+                }
+            }
+    });
+    Detection detection;
+    for (const BlockResult& r : results) {
+        detection.cellsTotal += r.total;
+        detection.cellsFlagged += r.flagged;
+        detection.refined.insert(detection.refined.end(), r.refined.begin(), r.refined.end());
+    }
+    return detection;
+}
+
+} // namespace hidden_internal
+} // namespace isouq
