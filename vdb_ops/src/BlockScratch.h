@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <cstring>
 #include <optional>
 #include <vector>
 
@@ -28,6 +29,18 @@ constexpr int kBlockDim = 8;
 inline int voxelOffset(int x, int y, int z) { return (x << 6) | (y << 3) | z; }
 
 enum RegionSide : std::uint8_t { kAllOutside = 0, kAllInside = 1, kMixed = 2 };
+
+/// dst[i] = src[i] for i < n <= 8, inlined (a call to memmove costs more than the copy).
+inline void copyRow(float* dst, const float* src, int n)
+{
+    switch (n) {
+    case 8: std::memcpy(dst, src, 8 * sizeof(float)); return;
+    case 2: std::memcpy(dst, src, 2 * sizeof(float)); return;
+    case 1: dst[0] = src[0]; return;
+    case 3: std::memcpy(dst, src, 3 * sizeof(float)); return;
+    default: for (int i = 0; i < n; ++i) dst[i] = src[i];
+    }
+}
 
 /// Bit z set when v[z] >= k, for z < n <= 8 (a whole leaf row at once with SSE2).
 inline std::uint32_t insideBits(const float* v, int n, float k)
@@ -106,8 +119,14 @@ class BlockScratch {
 public:
     using LeafT = typename TreeT::LeafNodeType;
 
+    /// The window [-halo, 8 + halo)^3.
     BlockScratch(const TreeT& tree, const BlockIndexTree& blockIndex, int halo)
-        : mAccessor(tree), mBlockIndex(blockIndex), mLo(-halo), mWidth(kBlockDim + 2 * halo),
+        : BlockScratch(tree, blockIndex, -halo, kBlockDim + 2 * halo)
+    {
+    }
+    /// The window [lo, lo + width)^3, lo in [-8, 0], lo + width in [8, 16].
+    BlockScratch(const TreeT& tree, const BlockIndexTree& blockIndex, int lo, int width)
+        : mAccessor(tree), mBlockIndex(blockIndex), mLo(lo), mWidth(width),
           mValues(std::size_t(mWidth) * mWidth * mWidth + kRowPadding), mInsideRows(std::size_t(mWidth) * mWidth),
           mActiveRows(mInsideRows.size())
     {
@@ -221,7 +240,7 @@ private:
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
                     const int row = (x - lo) * width + (y - lo);
                     float* dst = values + row * width + zShift;
-                    std::copy_n(buffer + src, zCount, dst);
+                    copyRow(dst, buffer + src, zCount);
                     // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
                     const bool cellRow = x >= -1 && x <= kBlockDim && y >= -1 && y <= kBlockDim;
                     const std::uint32_t inside = cellRow ? insideBits(dst, zCount, isovalue) : 0u;

@@ -6,12 +6,12 @@
 // slope rule flags a cell when one of its 12 edges' three slopes rise and fall. A flagged cell
 // whose 18 face and edge neighbours are meshed is refined when the tricubic interpolant crosses k
 // in it (and, with the filter, reveals a sign its corners hide). Deciding that means refining
-// the cell; cheap bounds settle almost every cell first, each one exact (it never rejects a cell
-// the refinement would keep):
-//   Lebesgue:  the tricubic stays within 1.25^3 times the stencil's half range of its mid range;
-//   curvature: it differs from the trilinear interpolant by at most c1 (1.25^2 S_x + 1.25 S_y +
-//              S_z), c1 = 1 / (9 sqrt 3), S_a the largest sums of two |second differences| along
-//              a (the cubic's error term), and the trilinear one keeps the corners' margin to k;
+// the cell; two exact bounds (they never reject a cell the refinement would keep) settle almost
+// every cell first:
+//   curvature: the tricubic differs from the trilinear interpolant by at most
+//              c1 (1.25^2 S_x + 1.25 S_y + S_z), c1 = 1 / (9 sqrt 3), S_a the largest sums of two
+//              |second differences| along a (the cubic's error term), and the trilinear one keeps
+//              the corners' least distance to k (likewise on the edges and faces the filter reads);
 //   Bernstein: the hull of the 64 Bernstein coefficients, in float and then in double.
 #include "HiddenInternal.h"
 
@@ -56,18 +56,46 @@ inline void compareRows(const float* a, const float* b, int n, std::uint32_t& ri
 #endif
 }
 
-/// A block's values [-2, 10)^3 and what detection derives from them. Per-cell states are rows of
+/// The largest |v[i]| for i < n, or infinity when a value is not finite (then no float bound
+/// may reject anything: their slack is this magnitude's).
+inline float largestMagnitude(const float* v, int n)
+{
+    float m = 0.0f;
+    int i = 0;
+#ifdef __SSE2__
+    const __m128 noSign = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+    __m128 most = _mm_setzero_ps(), nan = _mm_setzero_ps();
+    for (; i + 4 <= n; i += 4) {
+        const __m128 x = _mm_loadu_ps(v + i);
+        most = _mm_max_ps(_mm_and_ps(x, noSign), most);
+        nan = _mm_or_ps(nan, _mm_cmpunord_ps(x, x));
+    }
+    if (_mm_movemask_ps(nan)) return std::numeric_limits<float>::infinity();
+    alignas(16) float lanes[4];
+    _mm_store_ps(lanes, most);
+    m = std::max(std::max(lanes[0], lanes[1]), std::max(lanes[2], lanes[3]));
+#endif
+    for (; i < n; ++i) {
+        if (std::isnan(v[i])) return std::numeric_limits<float>::infinity();
+        m = std::max(m, std::abs(v[i]));
+    }
+    return m;
+}
+
+/// A block's values [-1, 10)^3 and what detection derives from them. Per-cell states are rows of
 /// bits along z: bit z + 1 for z in [-1, 10), or bit z for the block's cells z in [0, 8).
 class DetectWindow {
 public:
-    DetectWindow(const openvdb::FloatTree& tree, const BlockIndexTree& index) : mBlock(tree, index, 2) {}
+    DetectWindow(const openvdb::FloatTree& tree, const BlockIndexTree& index) : mBlock(tree, index, -1, 11) {}
 
     void gather(const Coord& origin, float k)
     {
         mBlock.gather(origin, k);
+        mK = k;
         slopeRows();
         stateRows();
-        mHaveRanges = mHaveCurvature = false;
+        mHaveCurvature = false;
+        mMagnitude = double(largestMagnitude(mBlock.row(-1, -1), 11 * 11 * 11));
     }
 
     /// Bits z of the block's cells (x, y, 0..7) that the slope rule flags (SPEC §4): a cell turns
@@ -127,23 +155,8 @@ public:
             for (int b = 0; b < 4; ++b) std::copy_n(rowFrom(x + a - 1, y + b - 1, z - 1), 4, out + 16 * a + 4 * b);
     }
 
-    /// The least and greatest value of the stencil of the cell (x, y, z) (computed for the
-    /// whole block at the first call, separably: z, then y, then x).
-    float stencilLow(int x, int y, int z)
-    {
-        if (!mHaveRanges) stencilRanges();
-        return mLow[x][y][z];
-    }
-    float stencilHigh(int x, int y, int z)
-    {
-        if (!mHaveRanges) stencilRanges();
-        return mHigh[x][y][z];
-    }
-    /// Slack for the float bounds of the cell (x, y, z) (kBoundSlack of its stencil's size).
-    double boundSlack(int x, int y, int z, double k)
-    {
-        return kBoundSlack * (std::abs(double(stencilLow(x, y, z))) + std::abs(double(stencilHigh(x, y, z))) + std::abs(k));
-    }
+    /// The largest |value| of the block's window (infinity if one is not finite).
+    double magnitude() const { return mMagnitude; }
 
     /// How far the tricubic can stray from the trilinear interpolant in the cell (x, y, z).
     float cellReach(int x, int y, int z)
@@ -151,22 +164,22 @@ public:
         if (!mHaveCurvature) curvature();
         return mReach[x][y][z];
     }
-    /// How far the cubic along the edge from voxel @a v along @a axis can stray from the line.
+    /// Bits z of the block's cells (x, y, 0..7) whose corners' least distance to k is within
+    /// cellReach (and boundSlack): the only cells whose tricubic may cross k without their
+    /// corners straddling it.
+    std::uint32_t nearCells(int x, int y)
+    {
+        if (!mHaveCurvature) curvature();
+        return mNear[x][y];
+    }
+    /// Slack for the float bounds (kBoundSlack of the window's magnitude and k's).
+    double boundSlack() const { return kBoundSlack * (2.0 * mMagnitude + std::abs(double(mK))); }
+    /// How far the cubic along the edge from voxel @a v in [0, 9)^3 along @a axis can stray
+    /// from the line.
     float edgeReach(const Coord& v, int axis)
     {
         if (!mHaveCurvature) curvature();
-        Coord w = v;
-        w[axis] += 1;
-        return kCubicErrorConstant * (second(axis, v) + second(axis, w));
-    }
-    /// How far the bicubic on the cell face through voxel @a v (the face's lowest corner) across
-    /// @a normal can stray from the bilinear interpolant: (P_u - L_u) P_v + L_u (P_v - L_v), the
-    /// smaller of the two orders of the free axes u and v.
-    float faceReach(const Coord& v, int normal)
-    {
-        if (!mHaveCurvature) curvature();
-        const int a = (normal + 1) % 3, b = (normal + 2) % 3;
-        return std::min(faceReach(v, a, b), faceReach(v, b, a));
+        return mEdgeReach[axis][v[0]][v[1]][v[2]];
     }
 
 private:
@@ -175,25 +188,6 @@ private:
 
     /// |second difference| along @a axis at voxel @a v in [-1, 10)^3 (along the axis [-1, 9)).
     float second(int axis, const Coord& v) const { return mSecond[axis][v[0] + 1][v[1] + 1][v[2] + 1]; }
-
-    float faceReach(const Coord& v, int u, int w) const
-    {
-        float acrossU[2] = {0.0f, 0.0f}; // per u node: max |D_u| over the four w nodes
-        float alongW = 0.0f;             // max over the u nodes of |D_w| at both w nodes
-        for (int i = 0; i < 2; ++i) {
-            Coord p = v;
-            p[u] += i;
-            for (int j = -1; j <= 2; ++j) {
-                Coord q = p;
-                q[w] += j;
-                acrossU[i] = std::max(acrossU[i], second(u, q));
-            }
-            Coord q = p;
-            q[w] += 1;
-            alongW = std::max(alongW, second(w, p) + second(w, q));
-        }
-        return kCubicErrorConstant * (1.25f * (acrossU[0] + acrossU[1]) + alongW);
-    }
 
     /// Sign rows of the slopes f(v + e_axis) - f(v): [axis][x + 1][y + 1], bit z + 1, for v in
     /// [-1, 9)^3.
@@ -206,64 +200,49 @@ private:
                         mRise[axis][x + 1][y + 1], mFall[axis][x + 1][y + 1]);
     }
 
-    /// Inside rows of the voxels [-1, 9)^2 and meshed rows of the cells [-1, 9)^2, bit z + 1.
+    /// Inside rows of the voxels [-1, 9)^2 and meshed rows of the cells [-1, 9)^2, bit z + 1
+    /// (the window starts at z = -1, so its rows already have that layout).
     void stateRows()
     {
         for (int x = -1; x < 9; ++x)
             for (int y = -1; y < 9; ++y) {
-                mInside[x + 1][y + 1] = mBlock.insideRow(x, y) >> 1;
+                mInside[x + 1][y + 1] = mBlock.insideRow(x, y);
                 const std::uint32_t r = mBlock.activeRow(x, y) | mBlock.activeRow(x + 1, y) |
                                         mBlock.activeRow(x, y + 1) | mBlock.activeRow(x + 1, y + 1);
-                mMeshed[x + 1][y + 1] = ((r | r >> 1) >> 1) & 0x3ffu;
+                mMeshed[x + 1][y + 1] = (r | r >> 1) & 0x3ffu;
             }
     }
 
-    void stencilRanges()
-    {
-        float lo[11][11][kBlockDim], hi[11][11][kBlockDim];
-        for (int x = 0; x < 11; ++x)
-            for (int y = 0; y < 11; ++y) {
-                const float* row = rowFrom(x - 1, y - 1, -1);
-                for (int z = 0; z < kBlockDim; ++z) {
-                    lo[x][y][z] = std::min(std::min(row[z], row[z + 1]), std::min(row[z + 2], row[z + 3]));
-                    hi[x][y][z] = std::max(std::max(row[z], row[z + 1]), std::max(row[z + 2], row[z + 3]));
-                }
-            }
-        for (int x = 0; x < 11; ++x)
-            for (int y = 0; y < kBlockDim; ++y)
-                for (int z = 0; z < kBlockDim; ++z) {
-                    lo[x][y][z] = std::min(std::min(lo[x][y][z], lo[x][y + 1][z]), std::min(lo[x][y + 2][z], lo[x][y + 3][z]));
-                    hi[x][y][z] = std::max(std::max(hi[x][y][z], hi[x][y + 1][z]), std::max(hi[x][y + 2][z], hi[x][y + 3][z]));
-                }
-        for (int x = 0; x < kBlockDim; ++x)
-            for (int y = 0; y < kBlockDim; ++y)
-                for (int z = 0; z < kBlockDim; ++z) {
-                    mLow[x][y][z] = std::min(std::min(lo[x][y][z], lo[x + 1][y][z]), std::min(lo[x + 2][y][z], lo[x + 3][y][z]));
-                    mHigh[x][y][z] = std::max(std::max(hi[x][y][z], hi[x + 1][y][z]), std::max(hi[x + 2][y][z], hi[x + 3][y][z]));
-                }
-        mHaveRanges = true;
-    }
-
-    /// |Second differences| along each axis over [-1, 10)^3 (along the axis [-1, 9)), and
-    /// cellReach of every cell of the block from their separable maxima.
+    /// |Second differences| along each axis (at [0, 9) along it, [-1, 10) across), edgeReach
+    /// of the block's cell edges, cellReach of its cells from the differences' separable maxima,
+    /// and the near-k rows.
     void curvature()
     {
         for (int x = -1; x < 10; ++x)
             for (int y = -1; y < 10; ++y) {
-                const float* c = rowFrom(x, y, -1);
-                float* dz = mSecond[2][x + 1][y + 1];
-                for (int z = 0; z < 10; ++z) dz[z] = std::abs(c[z - 1] - 2.0f * c[z] + c[z + 1]);
-                if (x < 9) {
+                const float* c = rowFrom(x, y, -1); // c[i]: z = i - 1
+                if (x >= 0 && x < 9) {
                     const float *m = rowFrom(x - 1, y, -1), *p = rowFrom(x + 1, y, -1);
-                    float* dx = mSecond[0][x + 1][y + 1];
-                    for (int z = 0; z < 11; ++z) dx[z] = std::abs(m[z] - 2.0f * c[z] + p[z]);
+                    float* d = mSecond[0][x + 1][y + 1];
+                    for (int i = 0; i < 11; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
                 }
-                if (y < 9) {
+                if (y >= 0 && y < 9) {
                     const float *m = rowFrom(x, y - 1, -1), *p = rowFrom(x, y + 1, -1);
-                    float* dy = mSecond[1][x + 1][y + 1];
-                    for (int z = 0; z < 11; ++z) dy[z] = std::abs(m[z] - 2.0f * c[z] + p[z]);
+                    float* d = mSecond[1][x + 1][y + 1];
+                    for (int i = 0; i < 11; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
                 }
+                float* d = mSecond[2][x + 1][y + 1];
+                for (int i = 1; i < 10; ++i) d[i] = std::abs(c[i - 1] - 2.0f * c[i] + c[i + 1]);
             }
+        for (int axis = 0; axis < 3; ++axis) // edges from [0, 9)^3, [0, 8) along the axis
+            for (int x = 0; x < (axis == 0 ? 8 : 9); ++x)
+                for (int y = 0; y < (axis == 1 ? 8 : 9); ++y) {
+                    const float* d = mSecond[axis][x + 1][y + 1] + 1;
+                    const float* e = axis == 0 ? mSecond[0][x + 2][y + 1] + 1
+                                   : axis == 1 ? mSecond[1][x + 1][y + 2] + 1 : d + 1;
+                    for (int z = 0; z < (axis == 2 ? 8 : 9); ++z)
+                        mEdgeReach[axis][x][y][z] = kCubicErrorConstant * (d[z] + e[z]);
+                }
         // S_x: per x node (0..8), the max of |D_x| over the cell's 4x4 (y, z) window.
         float windowZ[9][11][kBlockDim], acrossX[9][kBlockDim][kBlockDim];
         for (int x = 0; x < 9; ++x)
@@ -298,16 +277,39 @@ private:
                     mReach[x][y][z] = kCubicErrorConstant * (1.5625f * sx + 1.25f * sy + sz);
                 }
             }
+        // The corners' least |f - k| per cell, separably (z, y, x), against the reach. In float:
+        // its rounding is far inside boundSlack.
+        float distance[9][9][9], alongZ[9][9][kBlockDim], alongY[9][kBlockDim][kBlockDim];
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < 9; ++y) {
+                const float* c = rowFrom(x, y, 0);
+                for (int z = 0; z < 9; ++z) distance[x][y][z] = std::abs(c[z] - mK);
+                for (int z = 0; z < kBlockDim; ++z) alongZ[x][y][z] = std::min(distance[x][y][z], distance[x][y][z + 1]);
+            }
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < kBlockDim; ++y)
+                for (int z = 0; z < kBlockDim; ++z) alongY[x][y][z] = std::min(alongZ[x][y][z], alongZ[x][y + 1][z]);
+        const float slack = float(boundSlack());
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y) {
+                std::uint32_t near = 0;
+                for (int z = 0; z < kBlockDim; ++z)
+                    near |= std::uint32_t(!(std::min(alongY[x][y][z], alongY[x + 1][y][z]) > mReach[x][y][z] + slack)) << z;
+                mNear[x][y] = near;
+            }
         mHaveCurvature = true;
     }
 
     mc_internal::BlockScratch<openvdb::FloatTree> mBlock;
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
     std::uint32_t mInside[10][10], mMeshed[10][10];
-    bool mHaveRanges = false, mHaveCurvature = false;
-    float mLow[kBlockDim][kBlockDim][kBlockDim], mHigh[kBlockDim][kBlockDim][kBlockDim];
+    bool mHaveCurvature = false;
+    float mK = 0.0f;
+    double mMagnitude = 0.0;
+    std::uint32_t mNear[kBlockDim][kBlockDim];
     float mSecond[3][11][11][11];
     float mReach[kBlockDim][kBlockDim][kBlockDim];
+    float mEdgeReach[3][9][9][9];
 };
 
 /// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
@@ -375,79 +377,88 @@ inline bool mayCross(const std::pair<double, double>& range, double k)
     return range.first - slack < k && range.second + slack >= k;
 }
 
-/// reveals() for the cell (x, y, z) of @a w whose corners straddle k (the cell itself then hides
-/// nothing), without refining all of it: an edge or face whose corners lie on one side is
-/// evaluated only when its curvature bound and then the Bernstein hull of its grid line or plane
-/// reach k. The values are refineCell's (Tricubic.h), so the answer is reveals()'.
-bool boundaryReveals(DetectWindow& w, int x, int y, int z, const float* stencil,
+/// Corner bits (4a + 2b + c for corner (a, b, c)) of the face across each axis at each side.
+constexpr unsigned kFaceCorners[3][2] = {{0x0fu, 0xf0u}, {0x33u, 0xccu}, {0x55u, 0xaau}};
+
+/// Whether the element of a cell given by @a s (per axis: 0 or 1 fixed at that side, 2 free; an
+/// edge or a face), whose corners all lie on the side @a cornersInside, has a subdivision value
+/// on the other side. Evaluated only when the Bernstein hull of its grid line or plane reaches k;
+/// the values are refineCell's (Tricubic.h).
+bool elementHidesSign(const float* stencil, const int (&s)[3], bool cornersInside,
     const std::vector<CubicWeights>& weights, int m, double k)
 {
-    bool cornerInside[2][2][2];
-    double cornerMargin[2][2][2];
-    for (int a = 0; a < 2; ++a)
-        for (int b = 0; b < 2; ++b)
-            for (int c = 0; c < 2; ++c) {
-                const double v = double(stencil[16 * (1 + a) + 4 * (1 + b) + 1 + c]);
-                cornerInside[a][b][c] = v >= k;
-                cornerMargin[a][b][c] = std::abs(v - k);
-            }
-    const double slack = w.boundSlack(x, y, z, k);
-    for (int sx = 0; sx < 3; ++sx)
-        for (int sy = 0; sy < 3; ++sy)
-            for (int sz = 0; sz < 3; ++sz) {
-                const int s[3] = {sx, sy, sz};
-                const int free = (sx == 2) + (sy == 2) + (sz == 2);
-                if (free == 0 || free == 3) continue;
-                int node[3], local[3][2];
-                for (int a = 0; a < 3; ++a) { // first stencil index and sub-point range per axis
-                    node[a] = s[a] == 2 ? 0 : 1 + s[a];
-                    local[a][0] = s[a] == 1 ? m : 0;
-                    local[a][1] = s[a] == 0 ? 0 : m;
-                }
-                int corners = 0, inside = 0;
-                double margin = std::numeric_limits<double>::max();
-                for (int a = s[0] == 1; a <= (s[0] != 0); ++a)
-                    for (int b = s[1] == 1; b <= (s[1] != 0); ++b)
-                        for (int c = s[2] == 1; c <= (s[2] != 0); ++c) {
-                            ++corners;
-                            inside += cornerInside[a][b][c];
-                            margin = std::min(margin, cornerMargin[a][b][c]);
-                        }
-                if (inside != 0 && inside != corners) continue;
-                // The element's lowest corner, and its free axis (edge) or fixed axis (face).
-                const Coord low(x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1));
-                int axis = 0;
-                while ((s[axis] == 2) != (free == 1)) ++axis;
-                const float reach = free == 1 ? w.edgeReach(low, axis) : w.faceReach(low, axis);
-                if (margin > double(reach) + slack) continue;
-                std::ptrdiff_t strides[2];
-                int dims = 0;
-                for (int a = 0; a < 3; ++a)
-                    if (s[a] == 2) strides[dims++] = a == 0 ? 16 : a == 1 ? 4 : 1;
-                if (!mayCross(cubicRange(stencil + 16 * node[0] + 4 * node[1] + node[2], strides, dims), k)) continue;
-                const bool cornersInside = inside != 0;
-                for (int p = local[0][0]; p <= local[0][1]; ++p)
-                    for (int q = local[1][0]; q <= local[1][1]; ++q)
-                        for (int r = local[2][0]; r <= local[2][1]; ++r)
-                            if ((tricubic(stencil, weights[std::size_t(p)], weights[std::size_t(q)],
-                                     weights[std::size_t(r)]) >= k) != cornersInside)
-                                return true;
-            }
+    int node[3], local[3][2];
+    std::ptrdiff_t strides[2];
+    int dims = 0;
+    for (int a = 0; a < 3; ++a) { // first stencil index and sub-point range per axis
+        node[a] = s[a] == 2 ? 0 : 1 + s[a];
+        local[a][0] = s[a] == 1 ? m : 0;
+        local[a][1] = s[a] == 0 ? 0 : m;
+        if (s[a] == 2) strides[dims++] = a == 0 ? 16 : a == 1 ? 4 : 1;
+    }
+    if (!mayCross(cubicRange(stencil + 16 * node[0] + 4 * node[1] + node[2], strides, dims), k)) return false;
+    for (int p = local[0][0]; p <= local[0][1]; ++p)
+        for (int q = local[1][0]; q <= local[1][1]; ++q)
+            for (int r = local[2][0]; r <= local[2][1]; ++r)
+                if ((tricubic(stencil, weights[std::size_t(p)], weights[std::size_t(q)], weights[std::size_t(r)]) >= k) !=
+                    cornersInside)
+                    return true;
     return false;
 }
 
-/// Whether the tricubic of the non-straddling cell (x, y, z) may cross k, by the Lebesgue and
-/// curvature bounds (exact: false only when the refinement would find no crossing).
-bool mayCrossBounded(DetectWindow& w, int x, int y, int z, double k)
+/// reveals() for the cell (x, y, z) of @a w whose corners straddle k (the cell itself then hides
+/// nothing), without refining all of it: an edge or face whose corners lie on one side is
+/// evaluated only when its curvature bound reaches k (the stencil is copied to @a stencil then).
+bool boundaryReveals(DetectWindow& w, int x, int y, int z, float* stencil, const std::vector<CubicWeights>& weights,
+    int m, double k)
 {
-    const double lo = w.stencilLow(x, y, z), hi = w.stencilHigh(x, y, z);
-    // Lebesgue: within 1.25^3 times the stencil's half range of the stencil's mid range.
-    const double mid = 0.5 * (lo + hi), reach = 1.953125 * 0.5 * (hi - lo);
-    if (std::abs(k - mid) > reach) return false;
-    // Curvature: the trilinear interpolant keeps the corners' least distance to k.
-    double margin = std::numeric_limits<double>::max();
-    for (int c = 0; c < 8; ++c) margin = std::min(margin, std::abs(double(w.value(x + (c >> 2), y + (c >> 1 & 1), z + (c & 1))) - k));
-    return margin <= double(w.cellReach(x, y, z)) + w.boundSlack(x, y, z, k);
+    unsigned inside = 0; // bit 4a + 2b + c: corner (a, b, c)
+    double margin[8];
+    for (int c = 0; c < 8; ++c) {
+        const double v = double(w.value(x + (c >> 2), y + (c >> 1 & 1), z + (c & 1)));
+        inside |= unsigned(v >= k) << c;
+        margin[c] = std::abs(v - k);
+    }
+    const double slack = w.boundSlack();
+    bool haveStencil = false;
+    // An edge or face of corner bits @a corners and element code @a s, from @a low, along or
+    // across @a axis: one whose corners lie on one side and whose curvature bound reaches k.
+    auto reveals = [&](unsigned corners, const int (&s)[3], const Coord& low, int axis, bool edge) {
+        const unsigned in = inside & corners;
+        if (in != 0 && in != corners) return false;
+        double least = std::numeric_limits<double>::max();
+        for (unsigned c = corners; c; c &= c - 1) least = std::min(least, margin[__builtin_ctz(c)]);
+        // A face lies in the cell: the cell's bound holds on it.
+        if (least > double(edge ? w.edgeReach(low, axis) : w.cellReach(x, y, z)) + slack) return false;
+        if (!haveStencil) {
+            w.stencil(x, y, z, stencil);
+            haveStencil = true;
+        }
+        return elementHidesSign(stencil, s, in != 0, weights, m, k);
+    };
+    const Coord cell(x, y, z);
+    for (int axis = 0; axis < 3; ++axis) {
+        const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+        for (int du = 0; du < 2; ++du)
+            for (int dv = 0; dv < 2; ++dv) { // the edge along axis at offsets du, dv
+                int s[3];
+                s[axis] = 2, s[u] = du, s[v] = dv;
+                Coord low = cell;
+                low[u] += du, low[v] += dv;
+                const unsigned corner0 = unsigned(du << (2 - u) | dv << (2 - v));
+                const unsigned corners = 1u << corner0 | 1u << (corner0 | 1u << (2 - axis));
+                if (reveals(corners, s, low, axis, true)) return true;
+            }
+        for (int side = 0; side < 2; ++side) { // the face across axis at side
+            int s[3] = {2, 2, 2};
+            s[axis] = side;
+            Coord low = cell;
+            low[axis] += side;
+            const unsigned corners = kFaceCorners[axis][side];
+            if (reveals(corners, s, low, axis, false)) return true;
+        }
+    }
+    return false;
 }
 
 } // namespace
@@ -494,18 +505,14 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
                 for (; flagged; flagged &= flagged - 1) {
                     const int z = __builtin_ctz(flagged);
                     if ((straddling >> z) & 1u) {
-                        if (hidden.filter) {
-                            w.stencil(x, y, z, stencil);
-                            if (!boundaryReveals(w, x, y, z, stencil, scratch.weights, m, k)) continue;
-                        }
+                        if (hidden.filter && !boundaryReveals(w, x, y, z, stencil, scratch.weights, m, k)) continue;
                     } else {
-                        if (!mayCrossBounded(w, x, y, z, k)) continue;
+                        if (!((w.nearCells(x, y) >> z) & 1u)) continue; // the curvature bound
                         w.stencil(x, y, z, stencil);
                         // The float hull first: its margin (100x its rounding, Tricubic.h, plus
                         // mayCross's slack) leaves every decision to the double hull's.
                         const auto rough = roughTricubicRange(stencil);
-                        const double margin = 1e-3 * (std::abs(double(w.stencilLow(x, y, z))) +
-                                                         std::abs(double(w.stencilHigh(x, y, z))) + std::abs(double(k)));
+                        const double margin = 1e-3 * (2.0 * w.magnitude() + std::abs(double(k)));
                         if (double(rough.first) - margin >= k || double(rough.second) + margin < k) continue;
                         if (!mayCross(tricubicRange(stencil), double(k))) continue;
                         refineCell(stencil, m, scratch.sub, scratch.workspace);
