@@ -56,30 +56,32 @@ inline void compareRows(const float* a, const float* b, int n, std::uint32_t& ri
 #endif
 }
 
-/// The largest |v[i]| for i < n, or infinity when a value is not finite (then no float bound
-/// may reject anything: their slack is this magnitude's).
-inline float largestMagnitude(const float* v, int n)
+/// The least and greatest of v[i], i < n; NaN values make both NaN.
+inline std::pair<float, float> valueRange(const float* v, int n)
 {
-    float m = 0.0f;
+    float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+    bool nan = false;
     int i = 0;
 #ifdef __SSE2__
-    const __m128 noSign = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
-    __m128 most = _mm_setzero_ps(), nan = _mm_setzero_ps();
+    __m128 least = _mm_set1_ps(lo), most = _mm_set1_ps(hi), unordered = _mm_setzero_ps();
     for (; i + 4 <= n; i += 4) {
         const __m128 x = _mm_loadu_ps(v + i);
-        most = _mm_max_ps(_mm_and_ps(x, noSign), most);
-        nan = _mm_or_ps(nan, _mm_cmpunord_ps(x, x));
+        least = _mm_min_ps(x, least);
+        most = _mm_max_ps(x, most);
+        unordered = _mm_or_ps(unordered, _mm_cmpunord_ps(x, x));
     }
-    if (_mm_movemask_ps(nan)) return std::numeric_limits<float>::infinity();
-    alignas(16) float lanes[4];
-    _mm_store_ps(lanes, most);
-    m = std::max(std::max(lanes[0], lanes[1]), std::max(lanes[2], lanes[3]));
+    alignas(16) float lanes[8];
+    _mm_store_ps(lanes, least);
+    _mm_store_ps(lanes + 4, most);
+    for (int j = 0; j < 4; ++j) lo = std::min(lo, lanes[j]), hi = std::max(hi, lanes[4 + j]);
+    nan = _mm_movemask_ps(unordered) != 0;
 #endif
     for (; i < n; ++i) {
-        if (std::isnan(v[i])) return std::numeric_limits<float>::infinity();
-        m = std::max(m, std::abs(v[i]));
+        nan |= std::isnan(v[i]);
+        lo = std::min(lo, v[i]), hi = std::max(hi, v[i]);
     }
-    return m;
+    if (nan) lo = hi = std::numeric_limits<float>::quiet_NaN();
+    return {lo, hi};
 }
 
 /// A block's values [-1, 10)^3 and what detection derives from them. Per-cell states are rows of
@@ -95,8 +97,17 @@ public:
         slopeRows();
         stateRows();
         mHaveCurvature = false;
-        mMagnitude = double(largestMagnitude(mBlock.row(-1, -1), 11 * 11 * 11));
+        const auto [lo, hi] = valueRange(mBlock.row(-1, -1), 11 * 11 * 11);
+        mMagnitude = std::isnan(lo) ? std::numeric_limits<double>::infinity()
+                                    : std::max(std::abs(double(lo)), std::abs(double(hi)));
+        // Lebesgue: a cell's tricubic stays within 1.25^3 times its stencil's half range of the
+        // stencil's mid range, and every stencil's range lies in the window's.
+        const double mid = 0.5 * (double(lo) + double(hi)), reach = 1.953125 * 0.5 * (double(hi) - double(lo));
+        mFarFromK = std::abs(double(k) - mid) > reach + boundSlack();
     }
+    /// No cell of the block has corners on both sides of k or a tricubic reaching k (a window
+    /// with a non-finite value never is).
+    bool farFromK() const { return mFarFromK; }
 
     /// Bits z of the block's cells (x, y, 0..7) that the slope rule flags (SPEC §4): a cell turns
     /// when one of its 12 edges does, and an edge when its three slopes rise and fall.
@@ -179,7 +190,9 @@ public:
     float edgeReach(const Coord& v, int axis)
     {
         if (!mHaveCurvature) curvature();
-        return mEdgeReach[axis][v[0]][v[1]][v[2]];
+        Coord w = v;
+        w[axis] += 1;
+        return kCubicErrorConstant * (second(axis, v) + second(axis, w));
     }
 
 private:
@@ -213,9 +226,8 @@ private:
             }
     }
 
-    /// |Second differences| along each axis (at [0, 9) along it, [-1, 10) across), edgeReach
-    /// of the block's cell edges, cellReach of its cells from the differences' separable maxima,
-    /// and the near-k rows.
+    /// |Second differences| along each axis (at [0, 9) along it, [-1, 10) across), cellReach of
+    /// the block's cells from their separable maxima, and the near-k rows.
     void curvature()
     {
         for (int x = -1; x < 10; ++x)
@@ -234,15 +246,6 @@ private:
                 float* d = mSecond[2][x + 1][y + 1];
                 for (int i = 1; i < 10; ++i) d[i] = std::abs(c[i - 1] - 2.0f * c[i] + c[i + 1]);
             }
-        for (int axis = 0; axis < 3; ++axis) // edges from [0, 9)^3, [0, 8) along the axis
-            for (int x = 0; x < (axis == 0 ? 8 : 9); ++x)
-                for (int y = 0; y < (axis == 1 ? 8 : 9); ++y) {
-                    const float* d = mSecond[axis][x + 1][y + 1] + 1;
-                    const float* e = axis == 0 ? mSecond[0][x + 2][y + 1] + 1
-                                   : axis == 1 ? mSecond[1][x + 1][y + 2] + 1 : d + 1;
-                    for (int z = 0; z < (axis == 2 ? 8 : 9); ++z)
-                        mEdgeReach[axis][x][y][z] = kCubicErrorConstant * (d[z] + e[z]);
-                }
         // S_x: per x node (0..8), the max of |D_x| over the cell's 4x4 (y, z) window.
         float windowZ[9][11][kBlockDim], acrossX[9][kBlockDim][kBlockDim];
         for (int x = 0; x < 9; ++x)
@@ -303,13 +306,12 @@ private:
     mc_internal::BlockScratch<openvdb::FloatTree> mBlock;
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
     std::uint32_t mInside[10][10], mMeshed[10][10];
-    bool mHaveCurvature = false;
+    bool mHaveCurvature = false, mFarFromK = false;
     float mK = 0.0f;
     double mMagnitude = 0.0;
     std::uint32_t mNear[kBlockDim][kBlockDim];
     float mSecond[3][11][11][11];
     float mReach[kBlockDim][kBlockDim][kBlockDim];
-    float mEdgeReach[3][9][9][9];
 };
 
 /// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
@@ -489,6 +491,7 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
         DetectWindow& w = scratch.window;
         w.gather(origin, k);
         BlockResult& out = results[b];
+        const bool farFromK = w.farFromK();
         float stencil[64];
         for (int x = 0; x < kBlockDim; ++x)
             for (int y = 0; y < kBlockDim; ++y) {
@@ -500,6 +503,7 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
                 out.flagged += std::size_t(__builtin_popcount(flagged));
                 // Transition cells must be meshed too, so the refinement stops one cell short of the
                 // border of the active region (where a sparse surface ends anyway).
+                if (farFromK) continue; // counted; nothing to refine
                 flagged &= w.meshedAround(x, y);
                 const std::uint32_t straddling = w.straddlingCells(x, y);
                 for (; flagged; flagged &= flagged - 1) {

@@ -15,7 +15,6 @@
 // segments of a transition cell form closed loops.
 #include "HiddenInternal.h"
 
-#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
@@ -37,26 +36,6 @@ std::optional<CoordBBox> dataBoundsOf(const openvdb::FloatGrid& grid, const Mesh
     auto hi = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
     if (!lo || !hi) return std::nullopt;
     return CoordBBox(Coord(lo->value()), Coord(hi->value()));
-}
-
-/// Which cell a standard triangle comes from: the one cell holding its three grid edges.
-std::optional<Coord> cellOfTriangle(const std::array<Coord, 3>& voxel, const std::array<int, 3>& axis)
-{
-    auto holds = [](const Coord& cell, const Coord& v, int a) {
-        const Coord d = v - cell;
-        for (int i = 0; i < 3; ++i)
-            if (d[i] < 0 || d[i] > 1 || (i == a && d[i] != 0)) return false;
-        return true;
-    };
-    const int a1 = (axis[0] + 1) % 3, a2 = (axis[0] + 2) % 3;
-    for (int d1 = 0; d1 < 2; ++d1)
-        for (int d2 = 0; d2 < 2; ++d2) {
-            Coord c = voxel[0];
-            c[a1] -= d1;
-            c[a2] -= d2;
-            if (holds(c, voxel[1], axis[1]) && holds(c, voxel[2], axis[2])) return c;
-        }
-    return std::nullopt;
 }
 
 } // namespace
@@ -180,7 +159,31 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     }
     fine.resize(fineCount);
 
-    // Standard vertices used by transition loops, found by their grid edge.
+    // Standard triangles of cells outside R and T stay. A standard triangle's cell is the least
+    // of its vertices' edge voxels per axis: each edge's lower voxel is at c or c + 1 on every
+    // axis, and no triangle of the case tables has its three vertices on one face of its cell
+    // (McTables.h), so on every axis some vertex has c.
+    constexpr std::size_t kTriangleChunk = 4096;
+    std::vector<std::uint8_t> keep(standard.triangleCount(), 1);
+    std::vector<std::vector<std::uint32_t>> removedVertices((standard.triangleCount() + kTriangleChunk - 1) / kTriangleChunk);
+    forEachChunk(standard.triangleCount(), kTriangleChunk, threaded, interrupter, [&](std::size_t begin, std::size_t end) {
+        BlockFinder finder(blocks);
+        std::vector<std::uint32_t>& removed = removedVertices[begin / kTriangleChunk];
+        for (std::size_t t = begin; t < end; ++t) {
+            const openvdb::Vec3I& tri = standard.triangles[t];
+            Coord cell((*edgeI)[tri[0]], (*edgeJ)[tri[0]], (*edgeK)[tri[0]]);
+            for (int i = 1; i < 3; ++i)
+                cell.minComponent(Coord((*edgeI)[tri[i]], (*edgeJ)[tri[i]], (*edgeK)[tri[i]]));
+            const std::int32_t block = finder.find(cell);
+            if (block < 0 || !replacedCells.test(block, BlockFinder::local(cell))) continue;
+            keep[t] = 0;
+            removed.insert(removed.end(), {tri[0], tri[1], tri[2]});
+        }
+    });
+
+    // Standard vertices used by transition loops, found by their grid edge. A transition cell's
+    // loops use the standard vertices of its crossing unrefined edges, and its own standard
+    // polygon (removed above) has a vertex on every crossing edge: only those are searched.
     std::vector<Ref> coarse;
     for (std::size_t c = refinedChunks; c < patches.size(); ++c)
         for (Ref r : patches[c].members)
@@ -190,38 +193,16 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     const std::size_t standardVertices = standard.vertexCount();
     constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
     std::vector<std::uint32_t> coarseVertex(coarse.size(), kNone);
-    forEach(standardVertices, 4096, threaded, nullptr, [&](std::size_t v) {
-        const Coord voxel((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
-        if (!packer.coarseFits(voxel)) return;
-        const Ref key = packer.coarse(voxel, (*edgeAxis)[v]);
-        const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
-        if (it != coarse.end() && *it == key) coarseVertex[std::size_t(it - coarse.begin())] = std::uint32_t(v);
-    });
+    for (const std::vector<std::uint32_t>& removed : removedVertices)
+        for (std::uint32_t v : removed) {
+            const Coord voxel((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
+            if (!packer.coarseFits(voxel)) continue;
+            const Ref key = packer.coarse(voxel, (*edgeAxis)[v]);
+            const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
+            if (it != coarse.end() && *it == key) coarseVertex[std::size_t(it - coarse.begin())] = v;
+        }
     for (std::uint32_t v : coarseVertex)
         if (v == kNone) throw std::logic_error("hidden features: a transition cell's grid edge has no standard vertex");
-
-    // Standard triangles of cells outside R and T stay.
-    std::vector<std::uint8_t> keep(standard.triangleCount(), 1);
-    tbb::enumerable_thread_specific<BlockFinder> finders([&] { return BlockFinder(blocks); });
-    forEach(standard.triangleCount(), 4096, threaded, interrupter, [&](std::size_t t) {
-        BlockFinder& finder = finders.local();
-        std::array<Coord, 3> voxel;
-        std::array<int, 3> axis;
-        for (int i = 0; i < 3; ++i) {
-            const std::size_t v = standard.triangles[t][i];
-            voxel[std::size_t(i)] = Coord((*edgeI)[v], (*edgeJ)[v], (*edgeK)[v]);
-            axis[std::size_t(i)] = (*edgeAxis)[v];
-        }
-        // The cell lies within one voxel below voxel[0] on each axis: in voxel[0]'s block when no
-        // coordinate is a multiple of 8, and then a block without replaced cells settles it.
-        const std::int32_t block = finder.find(voxel[0]);
-        if ((voxel[0].x() & 7) && (voxel[0].y() & 7) && (voxel[0].z() & 7) && (block < 0 || replacedCells.none(block)))
-            return;
-        const std::optional<Coord> cell = cellOfTriangle(voxel, axis);
-        if (!cell) return;
-        const std::int32_t cellBlock = finder.find(*cell);
-        if (cellBlock >= 0 && replacedCells.test(cellBlock, BlockFinder::local(*cell))) keep[t] = 0;
-    });
 
     // Vertex numbering: used standard vertices in their order, then fine vertices, then centres.
     std::vector<std::uint32_t> remap(standardVertices, 0);

@@ -107,6 +107,16 @@ void forEach(std::size_t count, std::size_t grain, bool threaded,
     if (stop) throw InterruptedError();
 }
 
+/// Runs body(begin, end) over [0, count) in chunks of @a chunk (per-thread state is then looked up
+/// once per chunk, not once per item).
+template <typename Body>
+void forEachChunk(std::size_t count, std::size_t chunk, bool threaded, openvdb::util::NullInterrupter* interrupter,
+    Body&& body)
+{
+    forEach((count + chunk - 1) / chunk, 1, threaded, interrupter,
+        [&](std::size_t c) { body(c * chunk, std::min(count, (c + 1) * chunk)); });
+}
+
 /// One bit per cell of every block of a BlockSet: word x of a block holds bits y * 8 + z (the
 /// leaf order of OpenVDB, so iterating bits visits cells in x, y, z order).
 class BlockCells {
@@ -135,7 +145,8 @@ private:
 };
 
 /// The block of a cell and the cell's place in it, remembering the last block (the cells looked
-/// up one after another are mostly in one block).
+/// up one after another are mostly in one block). Cheap to make: its accessor is not registered
+/// with the index tree, which nothing changes while blocks are looked up.
 class BlockFinder {
 public:
     explicit BlockFinder(const BlockSet& blocks) : mIndex(blocks.index) {}
@@ -153,7 +164,7 @@ public:
     static Coord local(const Coord& cell) { return Coord(cell[0] & 7, cell[1] & 7, cell[2] & 7); }
 
 private:
-    openvdb::tree::ValueAccessor<const BlockIndexTree> mIndex;
+    openvdb::tree::ValueAccessor<const BlockIndexTree, /*IsSafe=*/false> mIndex;
     Coord mLastBlock{std::numeric_limits<openvdb::Int32>::max()};
     std::int32_t mLast = -1;
 };

@@ -16,6 +16,7 @@
 #include <tbb/enumerable_thread_specific.h>
 
 #include <algorithm>
+#include <cstring>
 
 namespace isouq {
 namespace hidden_internal {
@@ -26,12 +27,23 @@ using Accessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
 /// Index of sub-point (p, q, r) in refineCell's output.
 inline std::size_t subIndex(int p, int q, int r, int n) { return std::size_t((p * n + q) * n + r); }
 
-/// The 4x4x4 voxels around the cell at @a c (Tricubic.h layout).
+/// The 4x4x4 voxels around the cell at @a c (Tricubic.h layout): a row of four from one leaf
+/// buffer when it has one, else voxel by voxel.
 void gatherStencil(const Accessor& acc, const Coord& c, float* stencil)
 {
+    using Leaf = openvdb::FloatTree::LeafNodeType;
     for (int a = 0; a < 4; ++a)
-        for (int b = 0; b < 4; ++b)
-            for (int d = 0; d < 4; ++d) stencil[16 * a + 4 * b + d] = acc.getValue(c.offsetBy(a - 1, b - 1, d - 1));
+        for (int b = 0; b < 4; ++b) {
+            const Coord p = c.offsetBy(a - 1, b - 1, -1);
+            float* out = stencil + 16 * a + 4 * b;
+            if ((p[2] & 7) <= 4) {
+                if (const Leaf* leaf = acc.probeConstLeaf(p)) {
+                    std::memcpy(out, leaf->buffer().data() + Leaf::coordToOffset(p), 4 * sizeof(float));
+                    continue;
+                }
+            }
+            for (int d = 0; d < 4; ++d) out[d] = acc.getValue(p.offsetBy(0, 0, d));
+        }
 }
 
 inline Coord times(const Coord& c, int s) { return Coord(c[0] * s, c[1] * s, c[2] * s); }
@@ -68,15 +80,12 @@ public:
     {
         mCell = cell;
         mValues.resize(std::size_t(mN) * mN * mN);
-        for (int c = 0; c < 8; ++c) evaluate(stencil, cornerLocal(c, mM));
-        for (int f = 0; f < 6; ++f) {
-            if (!faces[f]) continue;
-            const int axis = f / 2, u = (axis + 1) % 3, v = (axis + 2) % 3;
-            Coord p;
-            p[axis] = (f % 2) * mM;
-            for (p[u] = 0; p[u] <= mM; ++p[u])
-                for (p[v] = 0; p[v] <= mM; ++p[v]) evaluate(stencil, p);
+        for (int c = 0; c < 8; ++c) { // at the nodes the tricubic reads the voxel (Tricubic.h)
+            const Coord p = cornerLocal(c, mM);
+            mValues[subIndex(p[0], p[1], p[2], mN)] = double(stencil[16 * (1 + p[0] / mM) + 4 * (1 + p[1] / mM) + 1 + p[2] / mM]);
         }
+        for (int f = 0; f < 6; ++f)
+            if (faces[f]) evaluateFace(stencil, f);
         for (int e = 0; e < 12; ++e) {
             if (!edges[e]) continue;
             const McEdge& edge = kMcEdges[std::size_t(e)];
@@ -129,6 +138,29 @@ public:
     }
 
 private:
+    /// The values on face f (across axis f / 2, at side f % 2), separably: the sums tricubic()
+    /// makes for those points in its order (Tricubic.h), so the same bits, with the inner sums
+    /// shared between points.
+    void evaluateFace(const float* stencil, int f)
+    {
+        using tricubic_internal::contract;
+        const int axis = f / 2, node = 1 + f % 2, side = (f % 2) * mM, n = mN;
+        const auto w = [this](int s) -> const CubicWeights& { return mWeights[std::size_t(s)]; };
+        mPartial.resize(std::size_t(4 * n));
+        double* partial = mPartial.data();
+        for (int i = 0; i < 4; ++i) // plane lines (along the last free axis), contracted per point
+            for (int s = 0; s < n; ++s)
+                partial[i * n + s] = axis == 0 ? contract(w(s), stencil + 16 * node + 4 * i, 1)
+                                   : axis == 1 ? contract(w(s), stencil + 16 * i + 4 * node, 1)
+                                               : contract(w(s), stencil + 16 * i + node, 4);
+        for (int s = 0; s <= mM; ++s)
+            for (int t = 0; t <= mM; ++t) {
+                const double v = contract(w(s), partial + t, n);
+                const Coord p = axis == 0 ? Coord(side, s, t) : axis == 1 ? Coord(s, side, t) : Coord(s, t, side);
+                mValues[subIndex(p[0], p[1], p[2], n)] = v;
+            }
+    }
+
     void evaluate(const float* stencil, const Coord& p)
     {
         mValues[subIndex(p[0], p[1], p[2], mN)] = tricubic(stencil, mWeights[std::size_t(p[0])],
@@ -141,6 +173,7 @@ private:
     Coord mCell;
     std::vector<CubicWeights> mWeights;
     std::vector<double> mValues;
+    std::vector<double> mPartial; // evaluateFace's inner sums
     std::vector<Ref> mEdgeRefs; // per (sub-point, axis) of a refined cell: its crossing's Ref
     TricubicWorkspace mWorkspace;
 };
@@ -175,30 +208,35 @@ void meshRefinedCell(CellValues& cv, Patch& patch)
             }
 }
 
+/// Bit (dx + 1) * 9 + (dy + 1) * 3 + dz + 1 of a neighbourhood mask: the neighbour u + (dx, dy, dz).
+constexpr int neighbourBit(int dx, int dy, int dz) { return (dx + 1) * 9 + (dy + 1) * 3 + dz + 1; }
+
 /// Which faces (-x, +x, -y, +y, -z, +z) and edges of the unrefined cell @a u a refined cell
-/// shares.
+/// shares, from which of its 18 face and edge neighbours are refined.
 void refinedParts(const Coord& u, const BlockCells& refined, BlockFinder& finder, bool (&faces)[6], bool (&edges)[12])
 {
-    auto isRefined = [&](const Coord& c) {
+    std::uint32_t near = 0;
+    for (const auto& d : kFaceEdgeNeighbours) {
+        const Coord c = u.offsetBy(d[0], d[1], d[2]);
         const std::int32_t block = finder.find(c);
-        return block >= 0 && refined.test(block, BlockFinder::local(c));
-    };
-    for (int f = 0; f < 6; ++f) {
-        Coord across = u;
-        across[f / 2] += (f % 2) ? 1 : -1;
-        faces[f] = isRefined(across);
+        if (block >= 0 && refined.test(block, BlockFinder::local(c))) near |= 1u << neighbourBit(d[0], d[1], d[2]);
     }
-    for (int e = 0; e < 12; ++e) {
+    for (int f = 0; f < 6; ++f) {
+        int d[3] = {0, 0, 0};
+        d[f / 2] = (f % 2) ? 1 : -1;
+        faces[f] = (near >> neighbourBit(d[0], d[1], d[2])) & 1u;
+    }
+    for (int e = 0; e < 12; ++e) { // the three other cells around the edge
         const McEdge& edge = kMcEdges[std::size_t(e)];
-        const Coord v = u.offsetBy(edge.dx, edge.dy, edge.dz);
+        const int lowCorner[3] = {edge.dx, edge.dy, edge.dz};
         const int a1 = (edge.axis + 1) % 3, a2 = (edge.axis + 2) % 3;
         edges[e] = false;
         for (int d1 = 0; d1 < 2; ++d1)
             for (int d2 = 0; d2 < 2; ++d2) {
-                Coord c = v;
-                c[a1] -= d1;
-                c[a2] -= d2;
-                if (c != u && isRefined(c)) edges[e] = true;
+                int d[3] = {0, 0, 0};
+                d[a1] = lowCorner[a1] - d1;
+                d[a2] = lowCorner[a2] - d2;
+                if ((d[a1] || d[a2]) && ((near >> neighbourBit(d[0], d[1], d[2])) & 1u)) edges[e] = true;
             }
     }
 }
@@ -215,6 +253,7 @@ struct TransitionScratch {
     std::vector<std::pair<Ref, Ref>> segments;
     std::vector<FaceCrossing> walk;
     std::vector<std::uint8_t> used;
+    std::vector<std::pair<Ref, std::size_t>> starts;
     std::vector<std::size_t> loop;
     std::vector<Ref> edgeRefs;          // per (sub-point, axis): its crossing's Ref, once made
     std::vector<std::size_t> edgesMade; // the entries to clear for the next cell
@@ -305,6 +344,10 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
     // (the surfaces of the cells beyond those faces meet along that chord) and is skipped.
     std::vector<std::uint8_t>& used = scratch.used;
     used.assign(segments.size(), 0);
+    std::vector<std::pair<Ref, std::size_t>>& starts = scratch.starts; // (first key, segment), sorted
+    starts.clear();
+    for (std::size_t i = 0; i < segments.size(); ++i) starts.emplace_back(segments[i].first, i);
+    std::sort(starts.begin(), starts.end());
     std::vector<std::size_t>& loop = scratch.loop;
     for (std::size_t first = 0; first < segments.size(); ++first) {
         if (used[first]) continue;
@@ -312,11 +355,9 @@ void meshTransitionCell(const CellValues& cv, const bool (&faceRefined)[6], cons
         for (std::size_t s = first; !used[s];) {
             used[s] = 1;
             loop.push_back(s);
-            for (std::size_t n = 0; n < segments.size(); ++n)
-                if (segments[n].first == segments[s].second) {
-                    s = n;
-                    break;
-                }
+            const auto next = std::lower_bound(starts.begin(), starts.end(), std::make_pair(segments[s].second, std::size_t(0)));
+            if (next == starts.end() || next->first != segments[s].second) break;
+            s = next->second;
         }
         if (loop.size() < 3) continue;
         const Ref centre = kCentreRef | Ref(patch.memberEnds.size());
