@@ -56,6 +56,26 @@ inline void compareRows(const float* a, const float* b, int n, std::uint32_t& ri
 #endif
 }
 
+/// min and max as the vector instructions compute them (GCC vectorises these; std::min's
+/// reference form sometimes stays a branch). NaN handling is irrelevant where they are used: a
+/// window with a NaN has infinite slack.
+inline float minf(float a, float b) { return a < b ? a : b; }
+inline float maxf(float a, float b) { return a > b ? a : b; }
+
+/// Bits i < n <= 8 where !(a[i] > b[i]) (a NaN compares as not above: the bounds then keep).
+inline std::uint32_t notAboveBits(const float* a, const float* b, int n)
+{
+#ifdef __SSE2__
+    const int lo = _mm_movemask_ps(_mm_cmpngt_ps(_mm_loadu_ps(a), _mm_loadu_ps(b)));
+    const int hi = _mm_movemask_ps(_mm_cmpngt_ps(_mm_loadu_ps(a + 4), _mm_loadu_ps(b + 4)));
+    return std::uint32_t(lo | hi << 4) & ((1u << n) - 1u);
+#else
+    std::uint32_t bits = 0;
+    for (int i = 0; i < n; ++i) bits |= std::uint32_t(!(a[i] > b[i])) << i;
+    return bits;
+#endif
+}
+
 /// The least and greatest of v[i], i < n; NaN values make both NaN.
 inline std::pair<float, float> valueRange(const float* v, int n)
 {
@@ -96,7 +116,7 @@ public:
         mK = k;
         slopeRows();
         stateRows();
-        mHaveCurvature = false;
+        mHaveCurvature = mHaveBoundary = false;
         const auto [lo, hi] = valueRange(mBlock.row(-1, -1), 11 * 11 * 11);
         mMagnitude = std::isnan(lo) ? std::numeric_limits<double>::infinity()
                                     : std::max(std::abs(double(lo)), std::abs(double(hi)));
@@ -169,14 +189,8 @@ public:
     /// The largest |value| of the block's window (infinity if one is not finite).
     double magnitude() const { return mMagnitude; }
 
-    /// How far the tricubic can stray from the trilinear interpolant in the cell (x, y, z).
-    float cellReach(int x, int y, int z)
-    {
-        if (!mHaveCurvature) curvature();
-        return mReach[x][y][z];
-    }
-    /// Bits z of the block's cells (x, y, 0..7) whose corners' least distance to k is within
-    /// cellReach (and boundSlack): the only cells whose tricubic may cross k without their
+    /// Bits z of the block's cells (x, y, 0..7) whose corners' least distance to k is within the
+    /// cell's curvature bound (and boundSlack): the only cells whose tricubic may cross k without their
     /// corners straddling it.
     std::uint32_t nearCells(int x, int y)
     {
@@ -185,22 +199,10 @@ public:
     }
     /// Slack for the float bounds (kBoundSlack of the window's magnitude and k's).
     double boundSlack() const { return kBoundSlack * (2.0 * mMagnitude + std::abs(double(mK))); }
-    /// How far the cubic along the edge from voxel @a v in [0, 9)^3 along @a axis can stray
-    /// from the line.
-    float edgeReach(const Coord& v, int axis)
-    {
-        if (!mHaveCurvature) curvature();
-        Coord w = v;
-        w[axis] += 1;
-        return kCubicErrorConstant * (second(axis, v) + second(axis, w));
-    }
 
 private:
     /// The row (x, y) from z on.
     const float* rowFrom(int x, int y, int z) const { return mBlock.row(x, y) + (z - mBlock.lo()); }
-
-    /// |second difference| along @a axis at voxel @a v in [-1, 10)^3 (along the axis [-1, 9)).
-    float second(int axis, const Coord& v) const { return mSecond[axis][v[0] + 1][v[1] + 1][v[2] + 1]; }
 
     /// Sign rows of the slopes f(v + e_axis) - f(v): [axis][x + 1][y + 1], bit z + 1, for v in
     /// [-1, 9)^3.
@@ -230,21 +232,25 @@ private:
     /// the block's cells from their separable maxima, and the near-k rows.
     void curvature()
     {
-        for (int x = -1; x < 10; ++x)
+        // |D_x| at x in [0, 9), y in [-1, 10); |D_y| at x in [-1, 10), y in [0, 9); |D_z| at x, y,
+        // z in [0, 9). Rows of 12 (one past the window's 11, never read) so the loops vectorise.
+        for (int x = 0; x < 9; ++x)
             for (int y = -1; y < 10; ++y) {
-                const float* c = rowFrom(x, y, -1); // c[i]: z = i - 1
-                if (x >= 0 && x < 9) {
-                    const float *m = rowFrom(x - 1, y, -1), *p = rowFrom(x + 1, y, -1);
-                    float* d = mSecond[0][x + 1][y + 1];
-                    for (int i = 0; i < 11; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
-                }
-                if (y >= 0 && y < 9) {
-                    const float *m = rowFrom(x, y - 1, -1), *p = rowFrom(x, y + 1, -1);
-                    float* d = mSecond[1][x + 1][y + 1];
-                    for (int i = 0; i < 11; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
-                }
+                const float *m = rowFrom(x - 1, y, -1), *c = rowFrom(x, y, -1), *p = rowFrom(x + 1, y, -1);
+                float* d = mSecond[0][x + 1][y + 1];
+                for (int i = 0; i < 12; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
+            }
+        for (int x = -1; x < 10; ++x)
+            for (int y = 0; y < 9; ++y) {
+                const float *m = rowFrom(x, y - 1, -1), *c = rowFrom(x, y, -1), *p = rowFrom(x, y + 1, -1);
+                float* d = mSecond[1][x + 1][y + 1];
+                for (int i = 0; i < 12; ++i) d[i] = std::abs(m[i] - 2.0f * c[i] + p[i]);
+            }
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < 9; ++y) {
+                const float* c = rowFrom(x, y, -1);
                 float* d = mSecond[2][x + 1][y + 1];
-                for (int i = 1; i < 10; ++i) d[i] = std::abs(c[i - 1] - 2.0f * c[i] + c[i + 1]);
+                for (int i = 1; i < 13; ++i) d[i] = std::abs(c[i - 1] - 2.0f * c[i] + c[i + 1]);
             }
         // S_x: per x node (0..8), the max of |D_x| over the cell's 4x4 (y, z) window.
         float windowZ[9][11][kBlockDim], acrossX[9][kBlockDim][kBlockDim];
@@ -252,20 +258,20 @@ private:
             for (int y = 0; y < 11; ++y) {
                 const float* d = mSecond[0][x + 1][y];
                 for (int z = 0; z < kBlockDim; ++z)
-                    windowZ[x][y][z] = std::max(std::max(d[z], d[z + 1]), std::max(d[z + 2], d[z + 3]));
+                    windowZ[x][y][z] = maxf(maxf(d[z], d[z + 1]), maxf(d[z + 2], d[z + 3]));
             }
         for (int x = 0; x < 9; ++x)
             for (int y = 0; y < kBlockDim; ++y)
                 for (int z = 0; z < kBlockDim; ++z)
-                    acrossX[x][y][z] = std::max(std::max(windowZ[x][y][z], windowZ[x][y + 1][z]),
-                        std::max(windowZ[x][y + 2][z], windowZ[x][y + 3][z]));
+                    acrossX[x][y][z] = maxf(maxf(windowZ[x][y][z], windowZ[x][y + 1][z]),
+                        maxf(windowZ[x][y + 2][z], windowZ[x][y + 3][z]));
         // S_y: per (x, y) node, the max of |D_y| over the cell's four z nodes.
         float acrossY[9][9][kBlockDim];
         for (int x = 0; x < 9; ++x)
             for (int y = 0; y < 9; ++y) {
                 const float* d = mSecond[1][x + 1][y + 1];
                 for (int z = 0; z < kBlockDim; ++z)
-                    acrossY[x][y][z] = std::max(std::max(d[z], d[z + 1]), std::max(d[z + 2], d[z + 3]));
+                    acrossY[x][y][z] = maxf(maxf(d[z], d[z + 1]), maxf(d[z + 2], d[z + 3]));
             }
         for (int x = 0; x < kBlockDim; ++x)
             for (int y = 0; y < kBlockDim; ++y) {
@@ -273,45 +279,132 @@ private:
                 const float *z01 = mSecond[2][x + 1][y + 2] + 1, *z11 = mSecond[2][x + 2][y + 2] + 1;
                 for (int z = 0; z < kBlockDim; ++z) {
                     const float sx = acrossX[x][y][z] + acrossX[x + 1][y][z];
-                    const float sy = std::max(acrossY[x][y][z] + acrossY[x][y + 1][z],
+                    const float sy = maxf(acrossY[x][y][z] + acrossY[x][y + 1][z],
                         acrossY[x + 1][y][z] + acrossY[x + 1][y + 1][z]);
-                    const float sz = std::max(std::max(z00[z] + z00[z + 1], z10[z] + z10[z + 1]),
-                        std::max(z01[z] + z01[z + 1], z11[z] + z11[z + 1]));
+                    const float sz = maxf(maxf(z00[z] + z00[z + 1], z10[z] + z10[z + 1]),
+                        maxf(z01[z] + z01[z + 1], z11[z] + z11[z + 1]));
                     mReach[x][y][z] = kCubicErrorConstant * (1.5625f * sx + 1.25f * sy + sz);
                 }
             }
         // The corners' least |f - k| per cell, separably (z, y, x), against the reach. In float:
         // its rounding is far inside boundSlack.
-        float distance[9][9][9], alongZ[9][9][kBlockDim], alongY[9][kBlockDim][kBlockDim];
         for (int x = 0; x < 9; ++x)
             for (int y = 0; y < 9; ++y) {
                 const float* c = rowFrom(x, y, 0);
-                for (int z = 0; z < 9; ++z) distance[x][y][z] = std::abs(c[z] - mK);
-                for (int z = 0; z < kBlockDim; ++z) alongZ[x][y][z] = std::min(distance[x][y][z], distance[x][y][z + 1]);
+                for (int z = 0; z < 12; ++z) mDistance[x][y][z] = std::abs(c[z] - mK);
+                for (int z = 0; z < kBlockDim; ++z) mPairZ[x][y][z] = minf(mDistance[x][y][z], mDistance[x][y][z + 1]);
             }
         for (int x = 0; x < 9; ++x)
             for (int y = 0; y < kBlockDim; ++y)
-                for (int z = 0; z < kBlockDim; ++z) alongY[x][y][z] = std::min(alongZ[x][y][z], alongZ[x][y + 1][z]);
+                for (int z = 0; z < kBlockDim; ++z) mFaceX[x][y][z] = minf(mPairZ[x][y][z], mPairZ[x][y + 1][z]);
         const float slack = float(boundSlack());
         for (int x = 0; x < kBlockDim; ++x)
             for (int y = 0; y < kBlockDim; ++y) {
-                std::uint32_t near = 0;
-                for (int z = 0; z < kBlockDim; ++z)
-                    near |= std::uint32_t(!(std::min(alongY[x][y][z], alongY[x + 1][y][z]) > mReach[x][y][z] + slack)) << z;
-                mNear[x][y] = near;
+                float least[kBlockDim];
+                for (int z = 0; z < kBlockDim; ++z) {
+                    least[z] = minf(mFaceX[x][y][z], mFaceX[x + 1][y][z]);
+                    mReach[x][y][z] += slack; // from here on, the reach with the slack
+                }
+                mNear[x][y] = notAboveBits(least, mReach[x][y], kBlockDim);
             }
         mHaveCurvature = true;
     }
 
+public:
+    /// Per element of the block's cells (12 edges, 6 faces), rows of bits: the element's corners
+    /// lie on one side of k and its curvature bound (edges: the cubic's along it; faces: the
+    /// cell's, which holds on its faces) reaches k. Edges along axis a from voxel v:
+    /// mEdgeRows[a][v_x][v_y] bit v_z; faces of cell c across axis a at side s: mFaceRows[2a + s]
+    /// [c_x][c_y] bit c_z.
+    void boundaryRows()
+    {
+        if (!mHaveCurvature) curvature();
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < 9; ++y)
+                for (int z = 0; z < kBlockDim; ++z) mFaceY[x][y][z] = minf(mPairZ[x][y][z], mPairZ[x + 1][y][z]);
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y)
+                for (int z = 0; z < 12; ++z)
+                    mFaceZ[x][y][z] = minf(minf(mDistance[x][y][z], mDistance[x + 1][y][z]),
+                        minf(mDistance[x][y + 1][z], mDistance[x + 1][y + 1][z]));
+        const float slack = float(boundSlack());
+        auto in = [this](int x, int y) { return mInside[x + 1][y + 1] >> 1; }; // bit z: voxel z
+        for (int axis = 0; axis < 3; ++axis)
+            for (int x = 0; x < 9 - (axis == 0); ++x)
+                for (int y = 0; y < 9 - (axis == 1); ++y) {
+                    const int x1 = x + (axis == 0), y1 = y + (axis == 1), dz = axis == 2, n = 9 - dz;
+                    const float *d0 = mDistance[x][y], *d1 = mDistance[x1][y1] + dz;
+                    const float *a0 = mSecond[axis][x + 1][y + 1] + 1, *a1 = mSecond[axis][x1 + 1][y1 + 1] + 1 + dz;
+                    float least[9], reach[9];
+                    for (int z = 0; z < n; ++z) {
+                        least[z] = minf(d0[z], d1[z]);
+                        reach[z] = kCubicErrorConstant * (a0[z] + a1[z]) + slack;
+                    }
+                    std::uint32_t near = notAboveBits(least, reach, kBlockDim);
+                    if (n > kBlockDim) near |= std::uint32_t(!(least[8] > reach[8])) << 8;
+                    const std::uint32_t same = ~(in(x, y) ^ (in(x1, y1) >> dz));
+                    mEdgeRows[axis][x][y] = near & same & 0x1ffu;
+                }
+        for (int x = 0; x < kBlockDim; ++x)
+            for (int y = 0; y < kBlockDim; ++y) {
+                const float* reach = mReach[x][y]; // with the slack (curvature)
+                const std::uint32_t near[6] = {notAboveBits(mFaceX[x][y], reach, kBlockDim),
+                    notAboveBits(mFaceX[x + 1][y], reach, kBlockDim), notAboveBits(mFaceY[x][y], reach, kBlockDim),
+                    notAboveBits(mFaceY[x][y + 1], reach, kBlockDim), notAboveBits(mFaceZ[x][y], reach, kBlockDim),
+                    notAboveBits(mFaceZ[x][y] + 1, reach, kBlockDim)};
+                // Faces whose four corners lie on one side: across x and y from the corner rows,
+                // across z from the four rows at z (side 0) or z + 1 (side 1).
+                auto oneSide = [](std::uint32_t a, std::uint32_t b) { // rows' voxels z, z + 1
+                    const std::uint32_t all = a & a >> 1 & b & b >> 1, none = ~(a | a >> 1 | b | b >> 1);
+                    return all | none;
+                };
+                const std::uint32_t r00 = in(x, y), r10 = in(x + 1, y), r01 = in(x, y + 1), r11 = in(x + 1, y + 1);
+                const std::uint32_t allZ = r00 & r10 & r01 & r11, noneZ = ~(r00 | r10 | r01 | r11);
+                const std::uint32_t same[6] = {oneSide(r00, r01), oneSide(r10, r11), oneSide(r00, r10), oneSide(r01, r11),
+                    allZ | noneZ, (allZ | noneZ) >> 1};
+                for (int f = 0; f < 6; ++f) mFaceRows[f][x][y] = near[f] & same[f] & 0xffu;
+            }
+        mHaveBoundary = true;
+    }
+    /// Bits z of the block's cells (x, y, 0..7) with an element boundaryRows keeps.
+    std::uint32_t boundaryCells(int x, int y)
+    {
+        if (!mHaveBoundary) boundaryRows();
+        std::uint32_t any = 0;
+        for (int f = 0; f < 6; ++f) any |= mFaceRows[f][x][y];
+        for (int d = 0; d < 2; ++d) {
+            any |= (mEdgeRows[0][x][y + d] | mEdgeRows[0][x][y + d] >> 1 | mEdgeRows[1][x + d][y] |
+                    mEdgeRows[1][x + d][y] >> 1);
+            for (int e = 0; e < 2; ++e) any |= mEdgeRows[2][x + d][y + e];
+        }
+        return any & 0xffu;
+    }
+    /// Whether boundaryRows keeps the edge of the cell (x, y, z) along @a axis at offsets @a du,
+    /// @a dv on the next two axes, or the face across @a axis at @a side.
+    bool edgeKept(int x, int y, int z, int axis, int du, int dv) const
+    {
+        int o[3] = {0, 0, 0};
+        o[(axis + 1) % 3] = du, o[(axis + 2) % 3] = dv;
+        return (mEdgeRows[axis][x + o[0]][y + o[1]] >> (z + o[2])) & 1u;
+    }
+    bool faceKept(int x, int y, int z, int axis, int side) const { return (mFaceRows[2 * axis + side][x][y] >> z) & 1u; }
+
+private:
+
     mc_internal::BlockScratch<openvdb::FloatTree> mBlock;
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
     std::uint32_t mInside[10][10], mMeshed[10][10];
-    bool mHaveCurvature = false, mFarFromK = false;
+    bool mHaveCurvature = false, mHaveBoundary = false, mFarFromK = false;
     float mK = 0.0f;
     double mMagnitude = 0.0;
     std::uint32_t mNear[kBlockDim][kBlockDim];
-    float mSecond[3][11][11][11];
-    float mReach[kBlockDim][kBlockDim][kBlockDim];
+    // Least |f - k|: at voxels [0, 9)^3 (rows padded to 12), over z pairs, over faces across x,
+    // y and z (z: padded).
+    float mDistance[9][9][12], mPairZ[9][9][kBlockDim];
+    float mFaceX[9][kBlockDim][kBlockDim], mFaceY[kBlockDim][9][kBlockDim], mFaceZ[kBlockDim][kBlockDim][12];
+    std::uint32_t mEdgeRows[3][9][9], mFaceRows[6][kBlockDim][kBlockDim];
+    float mSecond[3][11][11][13]; // [axis][x + 1][y + 1][z + 1]
+    float mReach[kBlockDim][kBlockDim][kBlockDim]; // per cell: its curvature bound plus boundSlack
 };
 
 /// Bits z (0..7) of the row origin + (x, y, z) whose cells [c + lo, c + hi] lie in @a box.
@@ -379,9 +472,6 @@ inline bool mayCross(const std::pair<double, double>& range, double k)
     return range.first - slack < k && range.second + slack >= k;
 }
 
-/// Corner bits (4a + 2b + c for corner (a, b, c)) of the face across each axis at each side.
-constexpr unsigned kFaceCorners[3][2] = {{0x0fu, 0xf0u}, {0x33u, 0xccu}, {0x55u, 0xaau}};
-
 /// Whether the element of a cell given by @a s (per axis: 0 or 1 fixed at that side, 2 free; an
 /// edge or a face), whose corners all lie on the side @a cornersInside, has a subdivision value
 /// on the other side. Evaluated only when the Bernstein hull of its grid line or plane reaches k;
@@ -409,55 +499,33 @@ bool elementHidesSign(const float* stencil, const int (&s)[3], bool cornersInsid
 }
 
 /// reveals() for the cell (x, y, z) of @a w whose corners straddle k (the cell itself then hides
-/// nothing), without refining all of it: an edge or face whose corners lie on one side is
-/// evaluated only when its curvature bound reaches k (the stencil is copied to @a stencil then).
+/// nothing), without refining all of it: only the edges and faces boundaryRows keeps are
+/// evaluated (the stencil is copied to @a stencil then).
 bool boundaryReveals(DetectWindow& w, int x, int y, int z, float* stencil, const std::vector<CubicWeights>& weights,
     int m, double k)
 {
-    unsigned inside = 0; // bit 4a + 2b + c: corner (a, b, c)
-    double margin[8];
-    for (int c = 0; c < 8; ++c) {
-        const double v = double(w.value(x + (c >> 2), y + (c >> 1 & 1), z + (c & 1)));
-        inside |= unsigned(v >= k) << c;
-        margin[c] = std::abs(v - k);
-    }
-    const double slack = w.boundSlack();
     bool haveStencil = false;
-    // An edge or face of corner bits @a corners and element code @a s, from @a low, along or
-    // across @a axis: one whose corners lie on one side and whose curvature bound reaches k.
-    auto reveals = [&](unsigned corners, const int (&s)[3], const Coord& low, int axis, bool edge) {
-        const unsigned in = inside & corners;
-        if (in != 0 && in != corners) return false;
-        double least = std::numeric_limits<double>::max();
-        for (unsigned c = corners; c; c &= c - 1) least = std::min(least, margin[__builtin_ctz(c)]);
-        // A face lies in the cell: the cell's bound holds on it.
-        if (least > double(edge ? w.edgeReach(low, axis) : w.cellReach(x, y, z)) + slack) return false;
+    auto reveals = [&](const int (&s)[3], int cornerX, int cornerY, int cornerZ) {
         if (!haveStencil) {
             w.stencil(x, y, z, stencil);
             haveStencil = true;
         }
-        return elementHidesSign(stencil, s, in != 0, weights, m, k);
+        return elementHidesSign(stencil, s, double(w.value(cornerX, cornerY, cornerZ)) >= k, weights, m, k);
     };
-    const Coord cell(x, y, z);
     for (int axis = 0; axis < 3; ++axis) {
         const int u = (axis + 1) % 3, v = (axis + 2) % 3;
         for (int du = 0; du < 2; ++du)
             for (int dv = 0; dv < 2; ++dv) { // the edge along axis at offsets du, dv
+                if (!w.edgeKept(x, y, z, axis, du, dv)) continue;
                 int s[3];
                 s[axis] = 2, s[u] = du, s[v] = dv;
-                Coord low = cell;
-                low[u] += du, low[v] += dv;
-                const unsigned corner0 = unsigned(du << (2 - u) | dv << (2 - v));
-                const unsigned corners = 1u << corner0 | 1u << (corner0 | 1u << (2 - axis));
-                if (reveals(corners, s, low, axis, true)) return true;
+                if (reveals(s, x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1))) return true;
             }
         for (int side = 0; side < 2; ++side) { // the face across axis at side
+            if (!w.faceKept(x, y, z, axis, side)) continue;
             int s[3] = {2, 2, 2};
             s[axis] = side;
-            Coord low = cell;
-            low[axis] += side;
-            const unsigned corners = kFaceCorners[axis][side];
-            if (reveals(corners, s, low, axis, false)) return true;
+            if (reveals(s, x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1))) return true;
         }
     }
     return false;
@@ -506,6 +574,7 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
                 if (farFromK) continue; // counted; nothing to refine
                 flagged &= w.meshedAround(x, y);
                 const std::uint32_t straddling = w.straddlingCells(x, y);
+                if (hidden.filter && (flagged & straddling)) flagged &= ~straddling | w.boundaryCells(x, y);
                 for (; flagged; flagged &= flagged - 1) {
                     const int z = __builtin_ctz(flagged);
                     if ((straddling >> z) & 1u) {
