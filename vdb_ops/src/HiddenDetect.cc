@@ -555,6 +555,10 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
         [&] { return Scratch{DetectWindow(tree, blocks.index), {}, {}, weights}; });
     forEach(blocks.origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
         const Coord& origin = blocks.origins[b];
+        // Cells are counted only when all their corners are in the data box.
+        if (dataBounds && !CoordBBox(dataBounds->min(), dataBounds->max().offsetBy(-1))
+                              .hasOverlap(CoordBBox(origin, origin.offsetBy(kBlockDim - 1))))
+            return;
         Scratch& scratch = scratches.local();
         DetectWindow& w = scratch.window;
         w.gather(origin, k);

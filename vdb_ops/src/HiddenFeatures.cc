@@ -149,7 +149,7 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         std::vector<FineCrossing>().swap(from);
     });
     auto byKey = [](const FineCrossing& a, const FineCrossing& b) { return a.key < b.key; };
-    if (threaded) tbb::parallel_sort(fine.begin(), fine.end(), byKey);
+    if (threaded && fine.size() > (std::size_t(1) << 16)) tbb::parallel_sort(fine.begin(), fine.end(), byKey);
     else std::sort(fine.begin(), fine.end(), byKey);
     std::vector<std::uint32_t> fineIndex(fine.size());
     std::size_t fineCount = 0;

@@ -215,10 +215,16 @@ constexpr int neighbourBit(int dx, int dy, int dz) { return (dx + 1) * 9 + (dy +
 /// shares, from which of its 18 face and edge neighbours are refined.
 void refinedParts(const Coord& u, const BlockCells& refined, BlockFinder& finder, bool (&faces)[6], bool (&edges)[12])
 {
+    // The neighbours lie in at most 8 blocks: look each up once.
+    std::int32_t blockOf[27];
+    std::fill_n(blockOf, 27, -2);
+    const Coord home = u >> 3;
     std::uint32_t near = 0;
     for (const auto& d : kFaceEdgeNeighbours) {
         const Coord c = u.offsetBy(d[0], d[1], d[2]);
-        const std::int32_t block = finder.find(c);
+        const Coord o = (c >> 3) - home;
+        std::int32_t& block = blockOf[neighbourBit(o[0], o[1], o[2])];
+        if (block == -2) block = finder.find(c);
         if (block >= 0 && refined.test(block, BlockFinder::local(c))) near |= 1u << neighbourBit(d[0], d[1], d[2]);
     }
     for (int f = 0; f < 6; ++f) {
