@@ -305,21 +305,26 @@ TEST_CASE("HiddenFeatures: Teardrop reconnects to the fine truth's single piece"
     // truth is linear MC of the same field at 256^3 (scikit-image: 2 at 32^3, 1 from 64^3 on).
     const LoadedVolume coarse = load("field:teardrop", 32, -0.001f);
     const MeshSettings settings = settingsAt(coarse.isovalue);
-    HiddenFeatureStats stats;
     const Mesh standard = isouq::extractIsosurface(*coarse.grid, settings);
-    const Mesh hidden = isouq::extractWithHiddenFeatures(*coarse.grid, settings, HiddenFeatureSettings{}, &stats);
     const LoadedVolume fine = load("field:teardrop", 256, -0.001f, KeepBlocks::Crossing);
     const std::size_t truth = components(isouq::extractIsosurface(*fine.grid, settings));
-    WARN("Teardrop 32^3: standard " << components(standard) << ", hidden " << components(hidden) << ", truth(256^3) "
-                                    << truth << "; flagged " << stats.cellsFlagged << "/" << stats.cellsTotal
-                                    << ", refined " << stats.cellsRefined << ", transition " << stats.cellsTransition);
     CHECK(components(standard) == 2);
     CHECK(truth == 1);
-    CHECK(components(hidden) == truth);
-    const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
-    CHECK(c.inner == 0);
-    CHECK(c.nonManifold == 0);
-    CHECK(c.misoriented == 0);
+    for (bool filter : {false, true}) {
+        HiddenFeatureSettings hf;
+        hf.filter = filter;
+        HiddenFeatureStats stats;
+        const Mesh hidden = isouq::extractWithHiddenFeatures(*coarse.grid, settings, hf, &stats);
+        WARN("Teardrop 32^3, filter " << filter << ": standard " << components(standard) << ", hidden "
+                                      << components(hidden) << ", truth(256^3) " << truth << "; flagged "
+                                      << stats.cellsFlagged << "/" << stats.cellsTotal << ", refined "
+                                      << stats.cellsRefined << ", transition " << stats.cellsTransition);
+        CHECK(components(hidden) == truth);
+        const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
+        CHECK(c.inner == 0);
+        CHECK(c.nonManifold == 0);
+        CHECK(c.misoriented == 0);
+    }
 }
 
 TEST_CASE("HiddenFeatures: Tubey's pieces reconnect towards the fine truth", "[hidden][paper][slow]")
@@ -333,20 +338,22 @@ TEST_CASE("HiddenFeatures: Tubey's pieces reconnect towards the fine truth", "[h
     const std::size_t truth = components(isouq::extractIsosurface(*fine.grid, settings));
     CHECK(components(standard) == 51);
     CHECK(truth == 2);
-    for (int m : {4, 8}) {
-        HiddenFeatureSettings hf;
-        hf.subdivisions = m;
-        HiddenFeatureStats stats;
-        const Mesh hidden = isouq::extractWithHiddenFeatures(*coarse.grid, settings, hf, &stats);
-        WARN("Tubey 32^3, m = " << m << ": standard " << components(standard) << ", hidden " << components(hidden)
-                                << ", truth(256^3) " << truth << "; flagged " << stats.cellsFlagged << "/"
-                                << stats.cellsTotal << ", refined " << stats.cellsRefined);
-        CHECK(2 * components(hidden) <= components(standard));
-        const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
-        CHECK(c.inner == 0);
-        CHECK(c.nonManifold == 0);
-        CHECK(c.misoriented == 0);
-    }
+    for (int m : {4, 8})
+        for (bool filter : {false, true}) {
+            HiddenFeatureSettings hf;
+            hf.subdivisions = m;
+            hf.filter = filter;
+            HiddenFeatureStats stats;
+            const Mesh hidden = isouq::extractWithHiddenFeatures(*coarse.grid, settings, hf, &stats);
+            WARN("Tubey 32^3, m = " << m << ", filter " << filter << ": standard " << components(standard)
+                                    << ", hidden " << components(hidden) << ", truth(256^3) " << truth << "; flagged "
+                                    << stats.cellsFlagged << "/" << stats.cellsTotal << ", refined " << stats.cellsRefined);
+            CHECK(2 * components(hidden) <= components(standard));
+            const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
+            CHECK(c.inner == 0);
+            CHECK(c.nonManifold == 0);
+            CHECK(c.misoriented == 0);
+        }
 }
 
 TEST_CASE("HiddenFeatures: sparse and dense sources give the same hidden-feature mesh", "[hidden][sparse]")

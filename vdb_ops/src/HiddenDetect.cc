@@ -5,7 +5,7 @@
 // values are gathered with a halo of two (BlockScratch.h) and turned into bit rows along z: the
 // slope rule flags a cell when one of its 12 edges' three slopes rise and fall. A flagged cell
 // whose 18 face and edge neighbours are meshed is refined when the tricubic interpolant crosses k
-// in it (and, with the filter, reveals a sign its corners hide). Deciding that means refining
+// in it (and, with the filter, reveals a sign its corners hide or decides an ambiguous case). Deciding that means refining
 // the cell; two exact bounds (they never reject a cell the refinement would keep) settle almost
 // every cell first:
 //   curvature: the tricubic differs from the trilinear interpolant by at most
@@ -15,6 +15,7 @@
 //   Bernstein: the hull of the 64 Bernstein coefficients, in float and then in double.
 #include "HiddenInternal.h"
 
+#include "isouq/McTables.h"
 #include "isouq/Tricubic.h"
 
 #include <tbb/enumerable_thread_specific.h>
@@ -55,6 +56,17 @@ inline void compareRows(const float* a, const float* b, int n, std::uint32_t& ri
     }
 #endif
 }
+
+/// Per marching-cubes case: whether its surface has several pieces in the cell (an ambiguous
+/// configuration: how they connect is the interpolant's to decide). A case's loops each fan into
+/// length - 2 triangles, so loops = (crossing edges - triangles) / 2.
+constexpr std::array<bool, 256> kSeveralPieces = [] {
+    std::array<bool, 256> out{};
+    for (int c = 0; c < 256; ++c)
+        out[std::size_t(c)] = __builtin_popcount(kMcCases.crossingEdges[std::size_t(c)]) -
+                                  kMcCases.triangleCount[std::size_t(c)] >= 4;
+    return out;
+}();
 
 /// min and max as the vector instructions compute them (GCC vectorises these; std::min's
 /// reference form sometimes stays a branch). NaN handling is irrelevant where they are used: a
@@ -165,6 +177,16 @@ public:
                 all &= dx != 0 && dy != 0 ? r >> 1 : r & r >> 1 & r >> 2;
             }
         return all & 0xffu;
+    }
+    /// The marching-cubes case of the block's cell (x, y, z) (McTables.h corner order).
+    int cubeCase(int x, int y, int z) const
+    {
+        int cubeCase = 0;
+        for (int c = 0; c < 8; ++c) {
+            const auto& o = kMcCornerOffset[std::size_t(c)];
+            cubeCase |= int((mInside[x + o.x + 1][y + o.y + 1] >> (z + o.z + 1)) & 1u) << c;
+        }
+        return cubeCase;
     }
     /// Bits z of the block's cells (x, y, 0..7) whose corners lie on both sides of k.
     std::uint32_t straddlingCells(int x, int y) const
@@ -578,11 +600,20 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
                 if (farFromK) continue; // counted; nothing to refine
                 flagged &= w.meshedAround(x, y);
                 const std::uint32_t straddling = w.straddlingCells(x, y);
-                if (hidden.filter && (flagged & straddling)) flagged &= ~straddling | w.boundaryCells(x, y);
+                // The filter keeps a straddling cell whose case has several pieces (the tricubic
+                // decides how they connect) or one of whose edges or faces may hide a sign.
+                std::uint32_t severalPieces = 0;
+                if (hidden.filter && (flagged & straddling)) {
+                    for (std::uint32_t c = flagged & straddling; c; c &= c - 1)
+                        if (kSeveralPieces[std::size_t(w.cubeCase(x, y, __builtin_ctz(c)))]) severalPieces |= c & -c;
+                    flagged &= ~straddling | severalPieces | w.boundaryCells(x, y);
+                }
                 for (; flagged; flagged &= flagged - 1) {
                     const int z = __builtin_ctz(flagged);
                     if ((straddling >> z) & 1u) {
-                        if (hidden.filter && !boundaryReveals(w, x, y, z, stencil, scratch.weights, m, k)) continue;
+                        if (hidden.filter && !((severalPieces >> z) & 1u) &&
+                            !boundaryReveals(w, x, y, z, stencil, scratch.weights, m, k))
+                            continue;
                     } else {
                         if (!((w.nearCells(x, y) >> z) & 1u)) continue; // the curvature bound
                         w.stencil(x, y, z, stencil);

@@ -22,9 +22,11 @@ namespace isouq {
 struct HiddenFeatureSettings {
     /// m: each refined cell becomes m^3 subcells; 1..64.
     int subdivisions = 4;
-    /// Refine a flagged cell only where the tricubic reveals a sign that the corners of the cell,
-    /// of one of its faces or of one of its edges hide (a feature marching cubes cannot see);
-    /// without it, every flagged cell through which the tricubic surface passes is refined.
+    /// Refine a flagged cell only where marching cubes cannot see what the tricubic shows: the
+    /// tricubic reveals a sign that the corners of the cell, of one of its faces or of one of its
+    /// edges hide, or the cell's case has several surface pieces whose connection the corners
+    /// leave open. Without it, every flagged cell through which the tricubic surface passes is
+    /// refined.
     bool filter = false;
 };
 
