@@ -22,8 +22,15 @@ CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
 {
     const std::string& names = spec.flag;
     switch (spec.type) {
-    case ParmType::Bool:
-        return cmd.add_flag_callback(names, [&values, spec] { store(values, spec, true); }, spec.tooltip);
+    case ParmType::Bool: {
+        // A parameter that is on by default gets a --no-NAME twin that turns it off.
+        std::string withNegation = names;
+        if (spec.defaultValue.is_boolean() && spec.defaultValue.get<bool>())
+            for (const std::string& name : CLI::detail::split(names, ','))
+                if (name.rfind("--", 0) == 0) withNegation += ",!--no-" + name.substr(2);
+        return cmd.add_flag_function(withNegation,
+            [&values, spec](std::int64_t count) { store(values, spec, count > 0); }, spec.tooltip);
+    }
     case ParmType::Int:
         return cmd.add_option_function<long long>(names, [&values, spec](const long long& v) { store(values, spec, v); },
             spec.tooltip);

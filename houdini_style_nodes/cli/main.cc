@@ -226,7 +226,7 @@ int main(int argc, char** argv)
             job.threads = threads;
             job.hiddenFeatures = hiddenFeatures || !hiddenOut.empty();
             job.subdivisions = hiddenParms.value("subdivisions", 4);
-            job.hiddenFilter = hiddenParms.value("filter", false);
+            job.hiddenFilter = hiddenParms.value("filter", true);
             job.hiddenOutput = hiddenOut;
             return runJob(job, quiet);
         }

@@ -276,9 +276,11 @@ void addVolumeNodes(std::vector<NodeType>& types)
         ranged(parm("subdivisions", "Subdivisions", ParmType::Int, 4, "m: each refined cell becomes m^3 subcells",
                    "--subdivisions"),
             std::make_pair(2.0, 8.0), std::make_pair(1.0, 64.0)),
-        parm("filter", "Filter", ParmType::Bool, false,
-            "Refine only where the tricubic reveals a sign the cell's corners hide: 5-6x cheaper on "
-            "noisy scans, fewer noise bubbles; keep it off for smooth fields (docs/hidden-features.md)",
+        parm("filter", "Filter", ParmType::Bool, true,
+            "Refine only where marching cubes cannot see what the tricubic shows (a sign the corners "
+            "hide, or how an ambiguous cell's pieces connect): as many reconnections, far fewer cells "
+            "and noise bubbles on scans; --no-hidden-filter refines every flagged cell the tricubic "
+            "surface passes through (docs/hidden-features.md)",
             "--hidden-filter"),
     };
     hidden.inputs = {{"volume", "volume", "The volume the mesh came from"},

@@ -27,7 +27,7 @@ struct HiddenFeatureSettings {
     /// edges hide, or the cell's case has several surface pieces whose connection the corners
     /// leave open. Without it, every flagged cell through which the tricubic surface passes is
     /// refined.
-    bool filter = false;
+    bool filter = true;
 };
 
 struct HiddenFeatureStats {

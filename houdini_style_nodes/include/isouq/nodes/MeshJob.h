@@ -22,7 +22,7 @@ struct MeshJob {
     int threads = 0;           ///< --threads (0: all cores)
     bool hiddenFeatures = false; ///< --hidden-features: the summary's `hidden` block (SPEC §4, §8)
     int subdivisions = 4;        ///< --subdivisions M
-    bool hiddenFilter = false;   ///< --hidden-filter (HiddenFeatureSettings::filter)
+    bool hiddenFilter = true;    ///< --hidden-filter / --no-hidden-filter (HiddenFeatureSettings::filter)
     std::string hiddenOutput;    ///< --hidden-out HF.ply ("" for none)
     /// field: and formula: inputs: err_true_<method> and dist_true against the exact field (SPEC §3).
     bool truth = true;
