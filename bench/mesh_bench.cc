@@ -41,9 +41,9 @@ namespace {
 /// isouq's linear pass (positions only), its estimate pass (linear crossings with the paper's
 /// e and e_b: "extraction plus estimate"), its full pass (every method, estimate and difference
 /// per vertex, issue 3), its hidden-feature pass (SPEC §4: standard MC with provenance, then
-/// detection, refinement and merge; positions only, optionally filtered), or OpenVDB's
-/// volumeToMesh.
-enum class Algo { Isouq, IsouqEstimate, IsouqFull, IsouqHidden, IsouqHiddenFiltered, VolumeToMesh };
+/// detection, refinement and merge; positions only; with the default filter or without it), or
+/// OpenVDB's volumeToMesh.
+enum class Algo { Isouq, IsouqEstimate, IsouqFull, IsouqHidden, IsouqHiddenUnfiltered, VolumeToMesh };
 
 const char* algoName(Algo a)
 {
@@ -52,7 +52,7 @@ const char* algoName(Algo a)
     case Algo::IsouqEstimate: return "estimate";
     case Algo::IsouqFull: return "full";
     case Algo::IsouqHidden: return "hidden";
-    case Algo::IsouqHiddenFiltered: return "hidden-filter";
+    case Algo::IsouqHiddenUnfiltered: return "hidden-unfiltered";
     case Algo::VolumeToMesh: break;
     }
     return "vtm";
@@ -60,7 +60,7 @@ const char* algoName(Algo a)
 
 Algo algoFromName(const std::string& s)
 {
-    for (Algo a : {Algo::Isouq, Algo::IsouqEstimate, Algo::IsouqFull, Algo::IsouqHidden, Algo::IsouqHiddenFiltered})
+    for (Algo a : {Algo::Isouq, Algo::IsouqEstimate, Algo::IsouqFull, Algo::IsouqHidden, Algo::IsouqHiddenUnfiltered})
         if (s == algoName(a)) return a;
     return Algo::VolumeToMesh;
 }
@@ -153,12 +153,12 @@ struct Reuse {
 CallResult runOnce(Algo algo, const openvdb::FloatGrid& grid, float isovalue, Reuse* reuse = nullptr)
 {
     CallResult r;
-    if (algo == Algo::IsouqHidden || algo == Algo::IsouqHiddenFiltered) {
+    if (algo == Algo::IsouqHidden || algo == Algo::IsouqHiddenUnfiltered) {
         isouq::MeshSettings settings;
         settings.isovalue = isovalue;
         settings.uncertainty = false;
         isouq::HiddenFeatureSettings hidden;
-        hidden.filter = algo == Algo::IsouqHiddenFiltered;
+        hidden.filter = algo != Algo::IsouqHiddenUnfiltered;
         const isouq::Mesh mesh = isouq::extractWithHiddenFeatures(grid, settings, hidden);
         r.triangles = mesh.triangles.size();
         r.outputBytes = mesh.positions.size() * sizeof(openvdb::Vec3s) +
@@ -289,7 +289,7 @@ struct Options {
     int repeats = 7;
     int memoryRuns = 3;
     std::string dataDir = ISOUQ_DATA_DIR;
-    Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-filter
+    Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-unfiltered
     bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
 };
 
@@ -319,7 +319,7 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
             if (o.isouqPass == Algo::VolumeToMesh)
-                throw std::runtime_error("--pass takes linear, estimate, full, hidden or hidden-filter");
+                throw std::runtime_error("--pass takes linear, estimate, full, hidden or hidden-unfiltered");
         }
         else if (arg == "--threads") {
             o.threads.clear();
@@ -327,7 +327,7 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full|hidden|hidden-filter] [--reuse]");
+                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse]");
         }
     }
     return o;
@@ -372,9 +372,9 @@ void benchCase(const std::string& caseName, const Options& o)
     }
 }
 
-bool isHiddenPass(Algo a) { return a == Algo::IsouqHidden || a == Algo::IsouqHiddenFiltered; }
+bool isHiddenPass(Algo a) { return a == Algo::IsouqHidden || a == Algo::IsouqHiddenUnfiltered; }
 
-/// --pass hidden|hidden-filter: the hidden-feature pass against plain marching cubes (isouq's
+/// --pass hidden|hidden-unfiltered: the hidden-feature pass against plain marching cubes (isouq's
 /// linear pass) and volumeToMesh on the same grid, interleaved; issue 4's goal is at most 3x
 /// plain MC. The flagged fraction and refined cells come from one extra call with statistics.
 void benchHiddenCase(const std::string& caseName, const Options& o)
@@ -385,7 +385,7 @@ void benchHiddenCase(const std::string& caseName, const Options& o)
     settings.isovalue = isovalue;
     settings.uncertainty = false;
     isouq::HiddenFeatureSettings hidden;
-    hidden.filter = o.isouqPass == Algo::IsouqHiddenFiltered;
+    hidden.filter = o.isouqPass != Algo::IsouqHiddenUnfiltered;
     isouq::HiddenFeatureStats stats;
     isouq::extractWithHiddenFeatures(*grid, settings, hidden, &stats);
     for (const int threads : o.threads) {

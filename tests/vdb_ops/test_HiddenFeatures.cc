@@ -435,6 +435,7 @@ TEST_CASE("HiddenFeatures: report on the scans (docs/hidden-features.md table)",
         const LoadedVolume volume = load(path, field ? std::optional<int>(32) : std::nullopt, k);
         const MeshSettings settings = settingsAt(volume.isovalue);
         HiddenFeatureSettings hf, filtered;
+        hf.filter = false;
         filtered.filter = true;
         HiddenFeatureStats stats, fstats;
         Mesh standard, hidden, hiddenFiltered;
