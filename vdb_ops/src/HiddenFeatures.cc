@@ -38,13 +38,18 @@ std::optional<CoordBBox> dataBoundsOf(const openvdb::FloatGrid& grid, const Mesh
     return CoordBBox(Coord(lo->value()), Coord(hi->value()));
 }
 
-} // namespace
-} // namespace hidden_internal
-
-Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
-    const HiddenFeatureSettings& hidden, HiddenFeatureStats* statsOut, openvdb::util::NullInterrupter* interrupter)
+/// The standard vertex columns extractWithHiddenFeatures asked for only to merge (SPEC §6
+/// provenance, and t_linear, which the mesher writes with it).
+bool isProvenanceColumn(const std::string& name)
 {
-    using namespace hidden_internal;
+    return name == "edge_i" || name == "edge_j" || name == "edge_k" || name == "edge_axis" || name == "t_linear";
+}
+
+/// addHiddenFeatures; without @a keepProvenance the result has no isProvenanceColumn columns.
+Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
+    const HiddenFeatureSettings& hidden, HiddenFeatureStats* statsOut, openvdb::util::NullInterrupter* interrupter,
+    bool keepProvenance)
+{
     const int m = hidden.subdivisions;
     if (m < 1 || m > kMaxSubdivisions)
         OPENVDB_THROW(openvdb::ValueError, "hidden features: subdivisions must be between 1 and 64 (got "
@@ -113,6 +118,12 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     Mesh mesh;
     if (refined.empty()) { // nothing refined: the standard mesh, all of it standard
         mesh = standard;
+        if (!keepProvenance) {
+            auto& columns = mesh.vertexAttributes.columns();
+            columns.erase(std::remove_if(columns.begin(), columns.end(),
+                              [](const Attribute& a) { return isProvenanceColumn(a.name); }),
+                columns.end());
+        }
         mesh.vertexAttributes.add<std::uint8_t>("hidden", mesh.vertexCount());
         mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
         return mesh;
@@ -215,9 +226,14 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         remap[v] = remap[v] ? std::uint32_t(kept.size()) : kNone;
         if (remap[v] != kNone) kept.push_back(std::uint32_t(v));
     }
+    // Kept standard triangles: per chunk of the keep pass, where its first one goes.
+    std::vector<std::size_t> keptBefore(removedVertices.size() + 1, 0);
+    for (std::size_t c = 0; c < removedVertices.size(); ++c) {
+        const std::size_t end = std::min(keep.size(), (c + 1) * kTriangleChunk);
+        keptBefore[c + 1] = keptBefore[c] + (end - c * kTriangleChunk) - removedVertices[c].size() / 3;
+    }
+    const std::size_t keptTriangles = keptBefore.back();
     std::vector<std::size_t> centreOffset(patches.size() + 1, 0), triangleOffset(patches.size() + 1, 0);
-    std::size_t keptTriangles = 0;
-    for (std::uint8_t f : keep) keptTriangles += f;
     triangleOffset[0] = keptTriangles;
     for (std::size_t c = 0; c < patches.size(); ++c) {
         centreOffset[c + 1] = centreOffset[c] + patches[c].memberEnds.size();
@@ -239,7 +255,9 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     // Positions: standard, then fine (index space (P + t e_axis) / m), then fan centres.
     mesh.indexToWorld = standard.indexToWorld;
     mesh.positions.resize(vertexCount);
-    for (std::size_t i = 0; i < kept.size(); ++i) mesh.positions[i] = standard.positions[kept[i]];
+    forEachChunk(kept.size(), 1 << 14, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) mesh.positions[i] = standard.positions[kept[i]];
+    });
     const openvdb::math::Transform& xform = grid.transform();
     forEach(fine.size(), 4096, threaded, nullptr, [&](std::size_t i) {
         const Coord p = packer.finePoint(fine[i].key);
@@ -252,12 +270,14 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
     const bool flip = settings.orientation == Orientation::TowardsHigher ||
                       (settings.orientation == Orientation::Auto && levelSet);
     mesh.triangles.resize(triangleOffset.back());
-    std::size_t n = 0;
-    for (std::size_t t = 0; t < keep.size(); ++t) {
-        if (!keep[t]) continue;
-        const openvdb::Vec3I& tri = standard.triangles[t];
-        mesh.triangles[n++] = openvdb::Vec3I(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
-    }
+    forEachChunk(keep.size(), kTriangleChunk, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
+        std::size_t n = keptBefore[begin / kTriangleChunk];
+        for (std::size_t t = begin; t < end; ++t) {
+            if (!keep[t]) continue;
+            const openvdb::Vec3I& tri = standard.triangles[t];
+            mesh.triangles[n++] = openvdb::Vec3I(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
+        }
+    });
     forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
         const Patch& p = patches[c];
         openvdb::Vec3I* out = mesh.triangles.data() + triangleOffset[c];
@@ -275,10 +295,13 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
 
     // Attributes (SPEC §6): standard columns copied; refined vertices as the header documents.
     for (const Attribute& column : standard.vertexAttributes.columns()) {
+        if (!keepProvenance && isProvenanceColumn(column.name)) continue;
         std::visit([&](const auto& src) {
             using T = typename std::decay_t<decltype(src)>::value_type;
             std::vector<T>& dst = mesh.vertexAttributes.add<T>(column.name, vertexCount);
-            for (std::size_t i = 0; i < kept.size(); ++i) dst[i] = src[kept[i]];
+            forEachChunk(kept.size(), 1 << 14, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
+                for (std::size_t i = begin; i < end; ++i) dst[i] = src[kept[i]];
+            });
             T fill{};
             if constexpr (std::is_floating_point_v<T>) fill = std::numeric_limits<T>::quiet_NaN();
             std::fill(dst.begin() + std::ptrdiff_t(fineBase), dst.end(), fill);
@@ -312,14 +335,25 @@ Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, con
         std::visit([&](const auto& src) {
             using T = typename std::decay_t<decltype(src)>::value_type;
             std::vector<T>& dst = mesh.faceAttributes.add<T>(column.name, mesh.triangleCount());
-            std::size_t f = 0;
-            for (std::size_t t = 0; t < keep.size(); ++t)
-                if (keep[t]) dst[f++] = src[t];
+            forEachChunk(keep.size(), kTriangleChunk, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
+                std::size_t f = keptBefore[begin / kTriangleChunk];
+                for (std::size_t t = begin; t < end; ++t)
+                    if (keep[t]) dst[f++] = src[t];
+            });
         }, column.data);
     }
     auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
     std::fill(hiddenFace.begin() + std::ptrdiff_t(keptTriangles), hiddenFace.end(), std::uint8_t(1));
     return mesh;
+}
+
+} // namespace
+} // namespace hidden_internal
+
+Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
+    const HiddenFeatureSettings& hidden, HiddenFeatureStats* stats, openvdb::util::NullInterrupter* interrupter)
+{
+    return hidden_internal::mergeHiddenFeatures(grid, standard, settings, hidden, stats, interrupter, true);
 }
 
 Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSettings& settings,
@@ -331,15 +365,9 @@ Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSetting
     MeshSettings withProvenance = settings;
     withProvenance.provenance = true;
     const Mesh standard = extractIsosurface(grid, withProvenance, interrupter);
-    Mesh mesh = addHiddenFeatures(grid, standard, settings, hidden, stats, interrupter);
-    if (!settings.provenance && !settings.uncertainty) { // the columns the caller asked for
-        auto& columns = mesh.vertexAttributes.columns();
-        columns.erase(std::remove_if(columns.begin(), columns.end(), [](const Attribute& a) {
-            return a.name == "edge_i" || a.name == "edge_j" || a.name == "edge_k" || a.name == "edge_axis" ||
-                   a.name == "t_linear";
-        }), columns.end());
-    }
-    return mesh;
+    // The columns the caller asked for (the mesher writes t_linear with provenance).
+    return hidden_internal::mergeHiddenFeatures(grid, standard, settings, hidden, stats, interrupter,
+        settings.provenance || settings.uncertainty);
 }
 
 } // namespace isouq
