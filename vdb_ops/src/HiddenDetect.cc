@@ -145,24 +145,8 @@ public:
     /// when one of its 12 edges does, and an edge when its three slopes rise and fall.
     std::uint32_t turningCells(int x, int y) const
     {
-        auto edges = [this](int axis, int ex, int ey) { // bits z of the edges (ex, ey, z) that turn
-            std::uint32_t rise, fall;
-            if (axis == 2) {
-                const std::uint32_t r = mRise[2][ex + 1][ey + 1], f = mFall[2][ex + 1][ey + 1];
-                rise = r | r >> 1 | r >> 2; // slopes z - 1, z, z + 1 at bits z, z + 1, z + 2
-                fall = f | f >> 1 | f >> 2;
-            } else {
-                const int dx = axis == 0, dy = axis == 1;
-                rise = fall = 0;
-                for (int s = -1; s <= 1; ++s) {
-                    rise |= mRise[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
-                    fall |= mFall[axis][ex + s * dx + 1][ey + s * dy + 1] >> 1;
-                }
-            }
-            return rise & fall;
-        };
-        const std::uint32_t alongZ = edges(2, x, y) | edges(2, x + 1, y) | edges(2, x, y + 1) | edges(2, x + 1, y + 1);
-        const std::uint32_t across = edges(0, x, y) | edges(0, x, y + 1) | edges(1, x, y) | edges(1, x + 1, y);
+        const std::uint32_t alongZ = mTurning[2][x][y] | mTurning[2][x + 1][y] | mTurning[2][x][y + 1] | mTurning[2][x + 1][y + 1];
+        const std::uint32_t across = mTurning[0][x][y] | mTurning[0][x][y + 1] | mTurning[1][x][y] | mTurning[1][x + 1][y];
         return (alongZ | across | across >> 1) & 0xffu;
     }
     /// Bits z of the block's cells (x, y, 0..7) that are meshed (an active corner, SPEC §1).
@@ -235,6 +219,23 @@ private:
                 for (int y = -1; y < 9; ++y)
                     compareRows(rowFrom(x + (axis == 0), y + (axis == 1), -1 + (axis == 2)), rowFrom(x, y, -1), 10,
                         mRise[axis][x + 1][y + 1], mFall[axis][x + 1][y + 1]);
+        // Bits z of the block's cell edges along each axis (from voxels [0, 9)^3, [0, 8) along the
+        // axis) that turn: their three slopes (from one voxel below to one above) rise and fall.
+        for (int x = 0; x < 9; ++x)
+            for (int y = 0; y < 9; ++y) {
+                const std::uint32_t r = mRise[2][x + 1][y + 1], f = mFall[2][x + 1][y + 1];
+                mTurning[2][x][y] = (r | r >> 1 | r >> 2) & (f | f >> 1 | f >> 2); // slopes z - 1, z, z + 1
+                for (int axis = 0; axis < 2; ++axis) {
+                    const int dx = axis == 0, dy = axis == 1;
+                    if ((dx && x == 8) || (dy && y == 8)) continue; // the cells' edges stop at 8
+                    std::uint32_t rise = 0, fall = 0;
+                    for (int s = -1; s <= 1; ++s) {
+                        rise |= mRise[axis][x + s * dx + 1][y + s * dy + 1] >> 1;
+                        fall |= mFall[axis][x + s * dx + 1][y + s * dy + 1] >> 1;
+                    }
+                    mTurning[axis][x][y] = rise & fall;
+                }
+            }
     }
 
     /// Inside rows of the voxels [-1, 9)^2 and meshed rows of the cells [-1, 9)^2, bit z + 1
@@ -415,6 +416,7 @@ private:
 
     mc_internal::BlockScratch<openvdb::FloatTree> mBlock;
     std::uint32_t mRise[3][10][10], mFall[3][10][10];
+    std::uint32_t mTurning[3][9][9]; // per axis and edge row (x, y): bits z of the turning edges
     std::uint32_t mInside[10][10], mMeshed[10][10];
     bool mHaveCurvature = false, mHaveBoundary = false, mFarFromK = false;
     float mK = 0.0f;
@@ -586,14 +588,18 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
         w.gather(origin, k);
         BlockResult& out = results[b];
         const bool farFromK = w.farFromK();
+        // Every stencil of the block's cells, [origin - 1, origin + 9], in the data box: no row
+        // needs boxRow.
+        const bool inBox = !dataBounds || dataBounds->isInside(CoordBBox(origin.offsetBy(-1), origin.offsetBy(kBlockDim + 1)));
         float stencil[64];
         for (int x = 0; x < kBlockDim; ++x)
             for (int y = 0; y < kBlockDim; ++y) {
-                const std::uint32_t cells = w.meshedCells(x, y) & boxRow(dataBounds, origin, x, y, 0, 1);
+                const std::uint32_t cells = w.meshedCells(x, y) & (inBox ? 0xffu : boxRow(dataBounds, origin, x, y, 0, 1));
                 out.total += std::size_t(__builtin_popcount(cells));
                 // The rule reads one voxel beyond each edge: cells whose stencil leaves the data are
                 // never flagged.
-                std::uint32_t flagged = cells & boxRow(dataBounds, origin, x, y, -1, 2) & w.turningCells(x, y);
+                std::uint32_t flagged = cells & w.turningCells(x, y);
+                if (!inBox) flagged &= boxRow(dataBounds, origin, x, y, -1, 2);
                 out.flagged += std::size_t(__builtin_popcount(flagged));
                 // Transition cells must be meshed too, so the refinement stops one cell short of the
                 // border of the active region (where a sparse surface ends anyway).
