@@ -513,6 +513,15 @@ bool elementHidesSign(const float* stencil, const int (&s)[3], bool cornersInsid
         if (s[a] == 2) strides[dims++] = a == 0 ? 16 : a == 1 ? 4 : 1;
     }
     if (!mayCross(cubicRange(stencil + 16 * node[0] + 4 * node[1] + node[2], strides, dims), k)) return false;
+    if (dims == 2) { // a face: its values separably (refineFace, the same bits)
+        int axis = 0;
+        while (s[axis] == 2) ++axis;
+        double partial[4 * (kMaxSubdivisions + 1)], values[(kMaxSubdivisions + 1) * (kMaxSubdivisions + 1)];
+        refineFace(stencil, axis, s[axis], weights, partial, values);
+        for (int i = 0; i < (m + 1) * (m + 1); ++i)
+            if ((values[i] >= k) != cornersInside) return true;
+        return false;
+    }
     for (int p = local[0][0]; p <= local[0][1]; ++p)
         for (int q = local[1][0]; q <= local[1][1]; ++q)
             for (int r = local[2][0]; r <= local[2][1]; ++r)

@@ -138,26 +138,17 @@ public:
     }
 
 private:
-    /// The values on face f (across axis f / 2, at side f % 2), separably: the sums tricubic()
-    /// makes for those points in its order (Tricubic.h), so the same bits, with the inner sums
-    /// shared between points.
+    /// The values on face f (across axis f / 2, at side f % 2): refineFace's, bitwise tricubic()'s.
     void evaluateFace(const float* stencil, int f)
     {
-        using tricubic_internal::contract;
-        const int axis = f / 2, node = 1 + f % 2, side = (f % 2) * mM, n = mN;
-        const auto w = [this](int s) -> const CubicWeights& { return mWeights[std::size_t(s)]; };
+        const int axis = f / 2, side = (f % 2) * mM, n = mN;
         mPartial.resize(std::size_t(4 * n));
-        double* partial = mPartial.data();
-        for (int i = 0; i < 4; ++i) // plane lines (along the last free axis), contracted per point
-            for (int s = 0; s < n; ++s)
-                partial[i * n + s] = axis == 0 ? contract(w(s), stencil + 16 * node + 4 * i, 1)
-                                   : axis == 1 ? contract(w(s), stencil + 16 * i + 4 * node, 1)
-                                               : contract(w(s), stencil + 16 * i + node, 4);
+        mFace.resize(std::size_t(n * n));
+        refineFace(stencil, axis, f % 2, mWeights, mPartial.data(), mFace.data());
         for (int s = 0; s <= mM; ++s)
             for (int t = 0; t <= mM; ++t) {
-                const double v = contract(w(s), partial + t, n);
                 const Coord p = axis == 0 ? Coord(side, s, t) : axis == 1 ? Coord(s, side, t) : Coord(s, t, side);
-                mValues[subIndex(p[0], p[1], p[2], n)] = v;
+                mValues[subIndex(p[0], p[1], p[2], n)] = mFace[std::size_t(s * n + t)];
             }
     }
 
@@ -173,7 +164,7 @@ private:
     Coord mCell;
     std::vector<CubicWeights> mWeights;
     std::vector<double> mValues;
-    std::vector<double> mPartial; // evaluateFace's inner sums
+    std::vector<double> mPartial, mFace; // evaluateFace's scratch
     std::vector<Ref> mEdgeRefs; // per (sub-point, axis) of a refined cell: its crossing's Ref
     TricubicWorkspace mWorkspace;
 };

@@ -145,6 +145,26 @@ double tricubic(const T* stencil, const CubicWeights& wx, const CubicWeights& wy
     return contract(wx, alongY, 1);
 }
 
+/// Values of the tricubic at the (m+1)^2 points of the cell face across @a axis at @a side (0 or
+/// 1), written to out[s * (m+1) + t] for the point whose free axes (in x, y, z order) are at
+/// s / m and t / m. The same sums as tricubic() at those points, in its order, so the same bits;
+/// the inner sums are shared between points. @a weights are cubicWeights(s, m), s = 0..m;
+/// @a partial is scratch of 4 (m+1) values.
+template <typename T>
+void refineFace(const T* stencil, int axis, int side, const std::vector<CubicWeights>& weights,
+    double* partial, double* out)
+{
+    using tricubic_internal::contract;
+    const int n = int(weights.size()), node = 1 + side;
+    for (int i = 0; i < 4; ++i) // the plane's lines along its last free axis, contracted per point
+        for (int t = 0; t < n; ++t)
+            partial[i * n + t] = axis == 0 ? contract(weights[std::size_t(t)], stencil + 16 * node + 4 * i, 1)
+                               : axis == 1 ? contract(weights[std::size_t(t)], stencil + 16 * i + 4 * node, 1)
+                                           : contract(weights[std::size_t(t)], stencil + 16 * i + node, 4);
+    for (int s = 0; s < n; ++s)
+        for (int t = 0; t < n; ++t) out[s * n + t] = contract(weights[std::size_t(s)], partial + t, n);
+}
+
 /// Scratch space of refineCell, reused between calls with the same m (no allocation per cell).
 struct TricubicWorkspace {
     int m = 0;
