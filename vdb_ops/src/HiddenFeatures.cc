@@ -46,7 +46,8 @@ bool isProvenanceColumn(const std::string& name)
 }
 
 /// addHiddenFeatures; without @a keepProvenance the result has no isProvenanceColumn columns.
-Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
+/// @a standard becomes the result (its storage is reused).
+Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const MeshSettings& settings,
     const HiddenFeatureSettings& hidden, HiddenFeatureStats* statsOut, openvdb::util::NullInterrupter* interrupter,
     bool keepProvenance)
 {
@@ -115,18 +116,20 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
     if (statsOut) *statsOut = stats;
     throwIfInterrupted(interrupter);
 
-    Mesh mesh;
+    Mesh& mesh = standard; // becomes the result in place
+    // Last (edgeI and the others point into the columns): the columns the caller did not ask for.
+    auto dropProvenance = [&] {
+        if (keepProvenance) return;
+        auto& columns = mesh.vertexAttributes.columns();
+        columns.erase(std::remove_if(columns.begin(), columns.end(),
+                          [](const Attribute& a) { return isProvenanceColumn(a.name); }),
+            columns.end());
+    };
     if (refined.empty()) { // nothing refined: the standard mesh, all of it standard
-        mesh = standard;
-        if (!keepProvenance) {
-            auto& columns = mesh.vertexAttributes.columns();
-            columns.erase(std::remove_if(columns.begin(), columns.end(),
-                              [](const Attribute& a) { return isProvenanceColumn(a.name); }),
-                columns.end());
-        }
+        dropProvenance();
         mesh.vertexAttributes.add<std::uint8_t>("hidden", mesh.vertexCount());
         mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
-        return mesh;
+        return std::move(mesh);
     }
     CoordBBox region;
     for (const Coord& c : refined) region.expand(c);
@@ -226,13 +229,8 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
         remap[v] = remap[v] ? std::uint32_t(kept.size()) : kNone;
         if (remap[v] != kNone) kept.push_back(std::uint32_t(v));
     }
-    // Kept standard triangles: per chunk of the keep pass, where its first one goes.
-    std::vector<std::size_t> keptBefore(removedVertices.size() + 1, 0);
-    for (std::size_t c = 0; c < removedVertices.size(); ++c) {
-        const std::size_t end = std::min(keep.size(), (c + 1) * kTriangleChunk);
-        keptBefore[c + 1] = keptBefore[c] + (end - c * kTriangleChunk) - removedVertices[c].size() / 3;
-    }
-    const std::size_t keptTriangles = keptBefore.back();
+    std::size_t keptTriangles = keep.size();
+    for (const std::vector<std::uint32_t>& removed : removedVertices) keptTriangles -= removed.size() / 3;
     std::vector<std::size_t> centreOffset(patches.size() + 1, 0), triangleOffset(patches.size() + 1, 0);
     triangleOffset[0] = keptTriangles;
     for (std::size_t c = 0; c < patches.size(); ++c) {
@@ -252,12 +250,11 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
         }
     };
 
+    // In place: kept vertices and triangles (and their columns) move down in order (kept[i] >= i,
+    // and a kept triangle's new index is at most its old one), then the new ones follow.
     // Positions: standard, then fine (index space (P + t e_axis) / m), then fan centres.
-    mesh.indexToWorld = standard.indexToWorld;
+    for (std::size_t i = 0; i < kept.size(); ++i) mesh.positions[i] = mesh.positions[kept[i]];
     mesh.positions.resize(vertexCount);
-    forEachChunk(kept.size(), 1 << 14, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
-        for (std::size_t i = begin; i < end; ++i) mesh.positions[i] = standard.positions[kept[i]];
-    });
     const openvdb::math::Transform& xform = grid.transform();
     forEach(fine.size(), 4096, threaded, nullptr, [&](std::size_t i) {
         const Coord p = packer.finePoint(fine[i].key);
@@ -269,15 +266,12 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
     const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
     const bool flip = settings.orientation == Orientation::TowardsHigher ||
                       (settings.orientation == Orientation::Auto && levelSet);
+    for (std::size_t t = 0, n = 0; t < keep.size(); ++t) {
+        if (!keep[t]) continue;
+        const openvdb::Vec3I tri = mesh.triangles[t];
+        mesh.triangles[n++] = openvdb::Vec3I(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
+    }
     mesh.triangles.resize(triangleOffset.back());
-    forEachChunk(keep.size(), kTriangleChunk, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
-        std::size_t n = keptBefore[begin / kTriangleChunk];
-        for (std::size_t t = begin; t < end; ++t) {
-            if (!keep[t]) continue;
-            const openvdb::Vec3I& tri = standard.triangles[t];
-            mesh.triangles[n++] = openvdb::Vec3I(remap[tri[0]], remap[tri[1]], remap[tri[2]]);
-        }
-    });
     forEach(patches.size(), 1, threaded, nullptr, [&](std::size_t c) {
         const Patch& p = patches[c];
         openvdb::Vec3I* out = mesh.triangles.data() + triangleOffset[c];
@@ -294,20 +288,18 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
     });
 
     // Attributes (SPEC §6): standard columns copied; refined vertices as the header documents.
-    for (const Attribute& column : standard.vertexAttributes.columns()) {
+    for (Attribute& column : mesh.vertexAttributes.columns()) {
         if (!keepProvenance && isProvenanceColumn(column.name)) continue;
-        std::visit([&](const auto& src) {
-            using T = typename std::decay_t<decltype(src)>::value_type;
-            std::vector<T>& dst = mesh.vertexAttributes.add<T>(column.name, vertexCount);
-            forEachChunk(kept.size(), 1 << 14, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
-                for (std::size_t i = begin; i < end; ++i) dst[i] = src[kept[i]];
-            });
+        std::visit([&](auto& dst) {
+            using T = typename std::decay_t<decltype(dst)>::value_type;
+            for (std::size_t i = 0; i < kept.size(); ++i) dst[i] = dst[kept[i]];
+            dst.resize(vertexCount);
             T fill{};
             if constexpr (std::is_floating_point_v<T>) fill = std::numeric_limits<T>::quiet_NaN();
             std::fill(dst.begin() + std::ptrdiff_t(fineBase), dst.end(), fill);
         }, column.data);
     }
-    if (auto* ei = mesh.vertexAttributes.find<std::int32_t>("edge_i")) {
+    if (auto* ei = keepProvenance ? mesh.vertexAttributes.find<std::int32_t>("edge_i") : nullptr) {
         auto& ej = *mesh.vertexAttributes.find<std::int32_t>("edge_j");
         auto& ek = *mesh.vertexAttributes.find<std::int32_t>("edge_k");
         auto& ea = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
@@ -331,20 +323,19 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
     }
     auto& hiddenVertex = mesh.vertexAttributes.add<std::uint8_t>("hidden", vertexCount);
     std::fill(hiddenVertex.begin() + std::ptrdiff_t(fineBase), hiddenVertex.end(), std::uint8_t(1));
-    for (const Attribute& column : standard.faceAttributes.columns()) {
-        std::visit([&](const auto& src) {
-            using T = typename std::decay_t<decltype(src)>::value_type;
-            std::vector<T>& dst = mesh.faceAttributes.add<T>(column.name, mesh.triangleCount());
-            forEachChunk(keep.size(), kTriangleChunk, threaded, nullptr, [&](std::size_t begin, std::size_t end) {
-                std::size_t f = keptBefore[begin / kTriangleChunk];
-                for (std::size_t t = begin; t < end; ++t)
-                    if (keep[t]) dst[f++] = src[t];
-            });
+    for (Attribute& column : mesh.faceAttributes.columns()) {
+        std::visit([&](auto& dst) {
+            using T = typename std::decay_t<decltype(dst)>::value_type;
+            for (std::size_t t = 0, f = 0; t < keep.size(); ++t)
+                if (keep[t]) dst[f++] = dst[t];
+            dst.resize(mesh.triangleCount());
+            std::fill(dst.begin() + std::ptrdiff_t(keptTriangles), dst.end(), T{});
         }, column.data);
     }
     auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
     std::fill(hiddenFace.begin() + std::ptrdiff_t(keptTriangles), hiddenFace.end(), std::uint8_t(1));
-    return mesh;
+    dropProvenance();
+    return std::move(mesh);
 }
 
 } // namespace
@@ -353,7 +344,7 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, c
 Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard, const MeshSettings& settings,
     const HiddenFeatureSettings& hidden, HiddenFeatureStats* stats, openvdb::util::NullInterrupter* interrupter)
 {
-    return hidden_internal::mergeHiddenFeatures(grid, standard, settings, hidden, stats, interrupter, true);
+    return hidden_internal::mergeHiddenFeatures(grid, Mesh(standard), settings, hidden, stats, interrupter, true);
 }
 
 Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSettings& settings,
@@ -364,9 +355,9 @@ Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSetting
                                                + std::to_string(hidden.subdivisions) + ")");
     MeshSettings withProvenance = settings;
     withProvenance.provenance = true;
-    const Mesh standard = extractIsosurface(grid, withProvenance, interrupter);
+    Mesh standard = extractIsosurface(grid, withProvenance, interrupter);
     // The columns the caller asked for (the mesher writes t_linear with provenance).
-    return hidden_internal::mergeHiddenFeatures(grid, standard, settings, hidden, stats, interrupter,
+    return hidden_internal::mergeHiddenFeatures(grid, std::move(standard), settings, hidden, stats, interrupter,
         settings.provenance || settings.uncertainty);
 }
 
