@@ -426,17 +426,20 @@ int main(int argc, char** argv)
             return childMemory(argv[2], algoFromName(argv[3]),
                 std::stoi(argv[4]), argv[5]);
         const Options o = parseOptions(argc, argv);
-        std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
-                    "fresh processes.\n\n",
-            (std::string(algoName(o.isouqPass)) + (o.reuse ? ", reused mesher and mesh" : "")).c_str(),
-            loadAverage().c_str(), o.repeats, o.memoryRuns);
         if (isHiddenPass(o.isouqPass)) {
+            std::printf("isouq pass: %s (MC: isouq's linear pass). Load average at start: %s; %d repeats "
+                        "(median).\n\n",
+                algoName(o.isouqPass), loadAverage().c_str(), o.repeats);
             std::printf("| case | flagged | refined cells | transition cells | threads | MC tris | hidden tris "
                         "| MC ms | hidden ms | VtM ms | hidden / MC | CPU hidden / MC | hidden / VtM | load |\n");
             std::printf("|---|--:|--:|--:|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
             for (const std::string& c : o.cases) benchHiddenCase(c, o);
             return 0;
         }
+        std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
+                    "fresh processes.\n\n",
+            (std::string(algoName(o.isouqPass)) + (o.reuse ? ", reused mesher and mesh" : "")).c_str(),
+            loadAverage().c_str(), o.repeats, o.memoryRuns);
         std::printf("| case | active Mvox | threads | isouq tris | VtM tris | isouq ms | VtM ms | time ratio "
                     "| isouq CPU ms | VtM CPU ms | CPU ratio | isouq Mtri/s | VtM Mtri/s | isouq +MiB | VtM +MiB "
                     "| mem ratio | load |\n");

@@ -25,6 +25,13 @@ echo
 "$build/bench/isouq_bench" "$@"
 echo
 
+echo "### Hidden features (issue 4): the pass against plain MC and volumeToMesh, same grid"
+echo
+"$build/bench/isouq_bench" --pass hidden --cases teardrop32,tubey32,engine
+echo
+"$build/bench/isouq_bench" --pass hidden-unfiltered --cases teardrop32,tubey32,engine
+echo
+
 echo "### Whole processes: sphere.vdb (k = 0)"
 echo
 if ! command -v hyperfine >/dev/null || ! command -v vdb_tool >/dev/null; then

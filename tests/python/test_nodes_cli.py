@@ -197,6 +197,17 @@ def test_hidden_features_summary(isouq_cli, tmp_path):
     assert hidden["components_before"] == 2 and hidden["components_after"] == 1  # SPEC §4 claim
     assert hidden["fraction"] == pytest.approx(hidden["cells_flagged"] / hidden["cells_total"])
     assert (tmp_path / "hf.ply").exists()
+    # The filter is on by default; --no-hidden-filter refines every flagged cell the tricubic
+    # surface passes through: more cells, the same reconnection.
+    assert hidden["filter"] is True
+    proc = run(isouq_cli, "mesh", "field:teardrop", "-n", 32, "-o", tmp_path / "mc2.ply", "--hidden-features",
+               "--no-hidden-filter", "--summary", tmp_path / "s2.json", "-q")
+    assert proc.returncode == 0, proc.stderr
+    unfiltered = json.loads((tmp_path / "s2.json").read_text())["hidden"]
+    assert unfiltered["filter"] is False
+    assert unfiltered["cells_refined"] > hidden["cells_refined"]
+    assert unfiltered["cells_flagged"] == hidden["cells_flagged"]
+    assert unfiltered["components_after"] == 1
 
 
 def test_ctrl_c_cancels_within_a_second(isouq_cli, tmp_path):
