@@ -2,12 +2,14 @@
 // docs/hidden-features.md "Detection").
 //
 // Per 8^3 block holding a meshed cell (in parallel; the result is in block order), the block's
-// values are gathered with a halo of two (BlockScratch.h) and turned into bit rows along z: the
-// slope rule flags a cell when one of its 12 edges' three slopes rise and fall. A flagged cell
-// whose 18 face and edge neighbours are meshed is refined when the tricubic interpolant crosses k
-// in it (and, with the filter, reveals a sign its corners hide or decides an ambiguous case). Deciding that means refining
-// the cell; two exact bounds (they never reject a cell the refinement would keep) settle almost
-// every cell first:
+// values [-1, 10)^3 are gathered (BlockScratch.h) and turned into bit rows along z: the slope
+// rule flags a cell when one of its 12 edges' three slopes rise and fall. A flagged cell whose
+// 18 face and edge neighbours are meshed is refined when the tricubic interpolant crosses k in
+// it (and, with the filter, reveals a sign its corners hide or decides an ambiguous case).
+// Deciding that means refining the cell; exact bounds (they never reject a cell the refinement
+// would keep) settle almost every cell first:
+//   Lebesgue:  per block, the tricubic stays within 1.25^3 times its stencil's half range of the
+//              stencil's mid range, and every stencil lies in the block's window;
 //   curvature: the tricubic differs from the trilinear interpolant by at most
 //              c1 (1.25^2 S_x + 1.25 S_y + S_z), c1 = 1 / (9 sqrt 3), S_a the largest sums of two
 //              |second differences| along a (the cubic's error term), and the trilinear one keeps
