@@ -42,20 +42,20 @@ inline void copyRow(float* dst, const float* src, int n)
     }
 }
 
-/// Bit z set when v[z] >= k, for z < n <= 8 (a whole leaf row at once with SSE2).
+/// Bit z set when v[z] >= k, for z < n <= 16 (four at a time with SSE2: v must be readable up
+/// to a multiple of 4 past n, which the windows' row padding guarantees).
 inline std::uint32_t insideBits(const float* v, int n, float k)
 {
-#ifdef __SSE2__
-    if (n == kBlockDim) {
-        const __m128 kk = _mm_set1_ps(k);
-        const int lo = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v), kk));
-        const int hi = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v + 4), kk));
-        return std::uint32_t(lo | hi << 4);
-    }
-#endif
     std::uint32_t bits = 0;
+#ifdef __SSE2__
+    const __m128 kk = _mm_set1_ps(k);
+    for (int z = 0; z < n; z += 4)
+        bits |= std::uint32_t(_mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v + z), kk))) << z;
+    return bits & ((1u << n) - 1u);
+#else
     for (int z = 0; z < n; ++z) bits |= std::uint32_t(v[z] >= k) << z;
     return bits;
+#endif
 }
 
 /// One voxel per block (coordinates >> 3), value = block index. Small internal nodes (8^3
@@ -184,8 +184,13 @@ public:
         std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
         for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
             for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
-                    gatherNeighbour(origin, bx, by, bz, isovalue);
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) gatherNeighbour(origin, bx, by, bz);
+        // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
+        for (int x = std::max(mLo, -1); x < std::min(mLo + mWidth, kBlockDim + 1); ++x)
+            for (int y = std::max(mLo, -1); y < std::min(mLo + mWidth, kBlockDim + 1); ++y) {
+                const int row = (x - mLo) * mWidth + (y - mLo);
+                mInsideRows[std::size_t(row)] = insideBits(&mValues[std::size_t(row * mWidth)], mWidth, isovalue);
+            }
     }
 
     /// Floats after the last row, so a row may be read four values at a time past its end.
@@ -218,7 +223,7 @@ private:
     int firstBlock() const { return (mLo - (kBlockDim - 1)) / kBlockDim; } // floor(lo / 8)
     int lastBlock() const { return (mLo + mWidth - 1) / kBlockDim; }
 
-    void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
+    void gatherNeighbour(const Coord& origin, int bx, int by, int bz)
     {
         // Locals, not members, in the loops: stores to the uint32 rows could alias the ints.
         const int lo = mLo, width = mWidth, hi = lo + width;
@@ -229,7 +234,6 @@ private:
         const int zCount = z1 - z0, zShift = z0 - lo;
         const std::uint32_t zRun = (1u << zCount) - 1u;
         float* values = mValues.data();
-        std::uint32_t* insideRows = mInsideRows.data();
         std::uint32_t* activeRows = mActiveRows.data();
         const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
         if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
@@ -239,27 +243,19 @@ private:
                 for (int y = y0; y < y1; ++y) {
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
                     const int row = (x - lo) * width + (y - lo);
-                    float* dst = values + row * width + zShift;
-                    copyRow(dst, buffer + src, zCount);
-                    // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
-                    const bool cellRow = x >= -1 && x <= kBlockDim && y >= -1 && y <= kBlockDim;
-                    const std::uint32_t inside = cellRow ? insideBits(dst, zCount, isovalue) : 0u;
+                    copyRow(values + row * width + zShift, buffer + src, zCount);
                     // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
                     const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
-                    const std::uint32_t active = std::uint32_t(word >> (src & 63)) & zRun;
-                    insideRows[row] |= inside << zShift;
-                    activeRows[row] |= active << zShift;
+                    activeRows[row] |= (std::uint32_t(word >> (src & 63)) & zRun) << zShift;
                 }
         } else {
             float tileValue;
             const bool tileActive = mAccessor.probeValue(nOrigin, tileValue);
-            const std::uint32_t inside = tileValue >= isovalue ? zRun << zShift : 0u;
             const std::uint32_t active = tileActive ? zRun << zShift : 0u;
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int row = (x - lo) * width + (y - lo);
                     std::fill_n(values + row * width + zShift, zCount, tileValue);
-                    insideRows[row] |= inside;
                     activeRows[row] |= active;
                 }
         }
