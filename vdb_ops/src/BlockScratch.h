@@ -197,7 +197,6 @@ public:
     static constexpr int kRowPadding = 4;
 
     int lo() const { return mLo; }
-    int width() const { return mWidth; }
     /// The values of the row (x, y): z from lo() on, width() of them.
     const float* row(int x, int y) const { return &mValues[std::size_t(index(x, y, mLo))]; }
     /// Bits z - lo() of the row (x, y): inside (x, y in [-1, 9) only) and active voxels.

@@ -138,7 +138,6 @@ public:
         return any == 0;
     }
     const Words& words(std::int32_t block) const { return mWords[std::size_t(block)]; }
-    std::size_t blockCount() const { return mWords.size(); }
 
 private:
     std::vector<Words> mWords;
