@@ -148,6 +148,12 @@ TEST_CASE("CLI: bad input gives one line, exit 2, and writes nothing", "[cli][er
     SECTION("bad formula") { requireCleanFailure("'formula:x^2+*y'", dir, "formula"); }
     SECTION("formula that is NaN in the domain") { requireCleanFailure("'formula:sqrt(x)' --domain -1,1", dir, ""); }
     SECTION("unknown method") { requireCleanFailure("field:sphere --method quartic", dir, "quartic"); }
+    SECTION("subdivisions 0, negative or absurd (issue 4)")
+    {
+        for (const char* m : {"0", "-3", "100000"})
+            requireCleanFailure(std::string("field:teardrop -n 16 --hidden-features --subdivisions ") + m, dir,
+                "--subdivisions");
+    }
 }
 
 TEST_CASE("CLI: the PLY is byte-identical whatever the thread count", "[cli][determinism]")
