@@ -322,7 +322,7 @@ private:
         for (int x = 0; x < 9; ++x)
             for (int y = 0; y < kBlockDim; ++y)
                 for (int z = 0; z < kBlockDim; ++z) mFaceX[x][y][z] = minf(mPairZ[x][y][z], mPairZ[x][y + 1][z]);
-        const float slack = float(boundSlack());
+        const float slack = mSlack = float(boundSlack());
         for (int x = 0; x < kBlockDim; ++x)
             for (int y = 0; y < kBlockDim; ++y) {
                 float least[kBlockDim];
@@ -413,6 +413,29 @@ public:
         return (mEdgeRows[axis][x + o[0]][y + o[1]] >> (z + o[2])) & 1u;
     }
     bool faceKept(int x, int y, int z, int axis, int side) const { return (mFaceRows[2 * axis + side][x][y] >> z) & 1u; }
+    /// After curvature(): whether the bicubic on the face of the cell (x, y, z) across @a normal
+    /// at @a side may reach k by the face's own bound, tighter than the cell's:
+    /// (P_u - L_u) P_w + L_u (P_w - L_w) with u, w its axes, so c1 (1.25 (the largest |D_u| over
+    /// the 4 w lines at both u nodes) + the larger over the u nodes of |D_w| at both w nodes).
+    bool faceMayReach(int x, int y, int z, int normal, int side) const
+    {
+        auto a = [this](int axis, int vx, int vy, int vz) { return mSecond[axis][vx + 1][vy + 1][vz + 1]; };
+        float acrossU[2] = {0.0f, 0.0f}, alongW = 0.0f, least = std::numeric_limits<float>::max();
+        for (int i = 0; i < 2; ++i) {
+            for (int j = -1; j <= 2; ++j)
+                acrossU[i] = maxf(acrossU[i], normal == 0 ? a(1, x + side, y + i, z + j)
+                                              : normal == 1 ? a(0, x + i, y + side, z + j)
+                                                            : a(0, x + i, y + j, z + side));
+            alongW = maxf(alongW, normal == 0 ? a(2, x + side, y + i, z) + a(2, x + side, y + i, z + 1)
+                                  : normal == 1 ? a(2, x + i, y + side, z) + a(2, x + i, y + side, z + 1)
+                                                : a(1, x + i, y, z + side) + a(1, x + i, y + 1, z + side));
+            for (int j = 0; j < 2; ++j) // the face's corners
+                least = minf(least, normal == 0 ? mDistance[x + side][y + i][z + j]
+                                    : normal == 1 ? mDistance[x + i][y + side][z + j]
+                                                  : mDistance[x + i][y + j][z + side]);
+        }
+        return !(least > kCubicErrorConstant * (1.25f * (acrossU[0] + acrossU[1]) + alongW) + mSlack);
+    }
 
 private:
 
@@ -429,6 +452,7 @@ private:
     float mDistance[9][9][12], mPairZ[9][9][kBlockDim];
     float mFaceX[9][kBlockDim][kBlockDim], mFaceY[kBlockDim][9][kBlockDim], mFaceZ[kBlockDim][kBlockDim][12];
     std::uint32_t mEdgeRows[3][9][9], mFaceRows[6][kBlockDim][kBlockDim];
+    float mSlack = 0.0f; // boundSlack, once curvature ran
     float mSecond[3][11][11][13]; // [axis][x + 1][y + 1][z + 1]
     float mReach[kBlockDim][kBlockDim][kBlockDim]; // per cell: its curvature bound plus boundSlack
 };
@@ -557,7 +581,7 @@ bool boundaryReveals(DetectWindow& w, int x, int y, int z, float* stencil, const
                 if (reveals(s, x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1))) return true;
             }
         for (int side = 0; side < 2; ++side) { // the face across axis at side
-            if (!w.faceKept(x, y, z, axis, side)) continue;
+            if (!w.faceKept(x, y, z, axis, side) || !w.faceMayReach(x, y, z, axis, side)) continue;
             int s[3] = {2, 2, 2};
             s[axis] = side;
             if (reveals(s, x + (s[0] == 1), y + (s[1] == 1), z + (s[2] == 1))) return true;
