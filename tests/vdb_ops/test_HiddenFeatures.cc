@@ -103,6 +103,16 @@ std::optional<openvdb::CoordBBox> boundsOf(const openvdb::FloatGrid& grid)
     return openvdb::CoordBBox(openvdb::Coord(lo->value()), openvdb::Coord(hi->value()));
 }
 
+/// No crack in @a mesh of @a grid: no edge used once off the data box's faces, none used more
+/// than twice, none used twice in one direction.
+void checkNoCracks(const Mesh& mesh, const openvdb::FloatGrid& grid)
+{
+    const Cracks c = cracks(mesh, grid.transform(), boundsOf(grid));
+    CHECK(c.inner == 0);
+    CHECK(c.nonManifold == 0);
+    CHECK(c.misoriented == 0);
+}
+
 MeshSettings settingsAt(float k)
 {
     MeshSettings s;
@@ -289,10 +299,7 @@ TEST_CASE("HiddenFeatures: random smooth fields have no cracks and agree threade
         const Mesh mesh = isouq::extractWithHiddenFeatures(*grid, settings, hf, &stats);
         CHECK(stats.cellsRefined > 0);
         CHECK(stats.cellsTransition > 0);
-        const Cracks c = cracks(mesh, grid->transform(), boundsOf(*grid));
-        CHECK(c.inner == 0);
-        CHECK(c.nonManifold == 0);
-        CHECK(c.misoriented == 0);
+        checkNoCracks(mesh, *grid);
         settings.threaded = false;
         requireSameMesh(mesh, isouq::extractWithHiddenFeatures(*grid, settings, hf));
     }
@@ -320,10 +327,7 @@ TEST_CASE("HiddenFeatures: Teardrop reconnects to the fine truth's single piece"
                                       << stats.cellsFlagged << "/" << stats.cellsTotal << ", refined "
                                       << stats.cellsRefined << ", transition " << stats.cellsTransition);
         CHECK(components(hidden) == truth);
-        const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
-        CHECK(c.inner == 0);
-        CHECK(c.nonManifold == 0);
-        CHECK(c.misoriented == 0);
+        checkNoCracks(hidden, *coarse.grid);
     }
 }
 
@@ -349,10 +353,7 @@ TEST_CASE("HiddenFeatures: Tubey's pieces reconnect towards the fine truth", "[h
                                     << ", hidden " << components(hidden) << ", truth(256^3) " << truth << "; flagged "
                                     << stats.cellsFlagged << "/" << stats.cellsTotal << ", refined " << stats.cellsRefined);
             CHECK(2 * components(hidden) <= components(standard));
-            const Cracks c = cracks(hidden, coarse.grid->transform(), boundsOf(*coarse.grid));
-            CHECK(c.inner == 0);
-            CHECK(c.nonManifold == 0);
-            CHECK(c.misoriented == 0);
+            checkNoCracks(hidden, *coarse.grid);
         }
 }
 
@@ -412,10 +413,7 @@ TEST_CASE("HiddenFeatures: no cracks on the sphere level set and the real scans"
             HiddenFeatureStats stats;
             const Mesh mesh = isouq::extractWithHiddenFeatures(*volume.grid, settings, hf, &stats);
             if (!filter) CHECK(stats.cellsRefined > 0);
-            const Cracks c = cracks(mesh, volume.grid->transform(), boundsOf(*volume.grid));
-            CHECK(c.inner == 0);
-            CHECK(c.nonManifold == 0);
-            CHECK(c.misoriented == 0);
+            checkNoCracks(mesh, *volume.grid);
         }
     }
 }
