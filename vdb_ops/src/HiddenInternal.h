@@ -132,12 +132,6 @@ public:
     {
         return (mWords[std::size_t(block)][std::size_t(local[0])] & bit(local)) != 0;
     }
-    bool none(std::int32_t block) const
-    {
-        std::uint64_t any = 0;
-        for (std::uint64_t w : mWords[std::size_t(block)]) any |= w;
-        return any == 0;
-    }
     const Words& words(std::int32_t block) const { return mWords[std::size_t(block)]; }
 
 private:
