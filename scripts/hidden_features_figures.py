@@ -19,29 +19,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-TYPES = {"float": "<f4", "int": "<i4", "uchar": "u1"}
+import _isouq_path  # noqa: F401  (puts ply_io on sys.path)
+import ply_io
+
 BLUE, ORANGE, GREEN = (0.30, 0.50, 0.85), (1.00, 0.55, 0.10), (0.20, 0.70, 0.30)
 
 
-def read_ply(path):
+def load(path):
     """Positions, triangles, vertex columns and face columns of an isouq binary PLY."""
-    data = Path(path).read_bytes()
-    end = data.index(b"end_header\n") + len(b"end_header\n")
-    element, vertex_props, face_props, counts = None, [], [], {}
-    for line in data[:end].decode().splitlines():
-        words = line.split()
-        if words[0] == "element":
-            element = words[1]
-            counts[element] = int(words[2])
-        elif words[0] == "property" and words[1] != "list":
-            (vertex_props if element == "vertex" else face_props).append((words[2], TYPES[words[1]]))
-    vertices = np.frombuffer(data, dtype=np.dtype(vertex_props), count=counts["vertex"], offset=end)
-    offset = end + vertices.nbytes
-    face_dtype = np.dtype([("n", "u1"), ("v", "<i4", 3)] + face_props)
-    faces = np.frombuffer(data, dtype=face_dtype, count=counts["face"], offset=offset)
-    assert (faces["n"] == 3).all()
-    positions = np.stack([vertices["x"], vertices["y"], vertices["z"]], axis=1)
-    return positions, faces["v"], vertices, faces
+    mesh = ply_io.read_ply(path, require_isouq=False)
+    return mesh.positions, mesh.triangles, mesh.vertex_attributes, mesh.face_attributes
 
 
 def draw(ax, positions, triangles, colours, alpha=1.0, edges=False):
@@ -77,8 +64,8 @@ def shade(base, positions, triangles, light=(0.4, -0.5, 0.8)):
 
 
 def teardrop(folder, out):
-    ps, ts, _, _ = read_ply(folder / "teardrop_standard.ply")
-    ph, th, vh, fh = read_ply(folder / "teardrop_hidden.ply")
+    ps, ts, _, _ = load(folder / "teardrop_standard.ply")
+    ph, th, vh, fh = load(folder / "teardrop_hidden.ply")
     kind = kinds(vh, fh, th)
     palette = np.array([BLUE, ORANGE, GREEN])
     lo, hi = np.array([-1.0, -0.6, -0.6]), np.array([1.0, 0.6, 0.6])
@@ -112,8 +99,8 @@ def teardrop(folder, out):
 
 
 def overlay(folder, out, name, title):
-    ps, ts, _, _ = read_ply(folder / f"{name}_standard.ply")
-    ph, th, _, _ = read_ply(folder / f"{name}_hidden.ply")
+    ps, ts, _, _ = load(folder / f"{name}_standard.ply")
+    ph, th, _, _ = load(folder / f"{name}_hidden.ply")
     lo, hi = np.minimum(ps.min(0), ph.min(0)), np.maximum(ps.max(0), ph.max(0))
     fig = plt.figure(figsize=(11, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")

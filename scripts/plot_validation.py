@@ -21,42 +21,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-PLY_TYPES = {"float": "<f4", "double": "<f8", "int": "<i4", "uint": "<u4", "uchar": "u1",
-             "char": "i1", "short": "<i2", "ushort": "<u2"}
-
-
-def read_ply(path):
-    """Binary little-endian PLY with triangle faces -> (vertex record array, (F, 3) indices)."""
-    with open(path, "rb") as f:
-        header = []
-        while True:
-            line = f.readline().decode("ascii").strip()
-            header.append(line)
-            if line == "end_header":
-                break
-        data = f.read()
-    elements, current = [], None
-    for line in header:
-        words = line.split()
-        if words[0] == "element":
-            current = (words[1], int(words[2]), [])
-            elements.append(current)
-        elif words[0] == "property":
-            if words[1] == "list":
-                current[2].append(("__count", PLY_TYPES[words[2]]))
-                current[2].extend((f"__i{c}", PLY_TYPES[words[3]]) for c in range(3))
-            else:
-                current[2].append((words[2], PLY_TYPES[words[1]]))
-    arrays, offset = {}, 0
-    for name, count, props in elements:
-        dtype = np.dtype(props)
-        arrays[name] = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
-        offset += dtype.itemsize * count
-    faces = arrays["face"]
-    if np.any(faces["__count"] != 3):
-        raise ValueError(f"{path}: only triangle meshes are supported")
-    tris = np.stack([faces["__i0"], faces["__i1"], faces["__i2"]], axis=1)
-    return arrays["vertex"], tris
+import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
+import ply_io  # noqa: E402
 
 
 def stat(case, column, key="rms"):
@@ -88,9 +54,9 @@ def fig4(cases, out):
     plt.close(fig)
 
 
-def fig3(case, vertices, tris, out):
+def fig3(case, mesh, out):
     """Paper Fig. 3: the surface coloured by measured linear error and by e, one colour scale."""
-    pts = np.stack([vertices["x"], vertices["y"], vertices["z"]], axis=1)
+    pts, tris, vertices = mesh.positions, mesh.triangles, mesh.vertex_attributes
     panels = [("err_true_linear", "measured edge error |x_lin - x*|"),
               ("dist_true_linear", "measured surface distance"),
               ("err_est", "estimate e")]
@@ -191,9 +157,9 @@ def main(argv):
     for case in cases:
         mesh = case.get("mesh")
         if mesh and os.path.exists(mesh):
-            vertices, tris = read_ply(mesh)
-            meshes[case["field"]] = vertices
-            fig3(case, vertices, tris, out)
+            read = ply_io.read_ply(mesh, require_isouq=False)
+            meshes[case["field"]] = read.vertex_attributes
+            fig3(case, read, out)
     fig4(cases, out)
     scatter(cases, meshes, out)
     convergence(report, out)

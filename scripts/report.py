@@ -8,7 +8,8 @@ box_select node (`in_box`); SUMMARY.json is a summary node's output. Writes
 DIR/c1_cdf.png (the CDF of the thresholded measure with its threshold and the binary colour map),
 DIR/c5_bars.png (err_est, d_lc, d_lw vertex by vertex in the box), DIR/c7_summary.png (the
 summary table) and, with --html, DIR/index.html. Each file is written atomically. The `report`
-node runs this script; it needs Debian's python3-matplotlib and python3-meshio.
+node runs this script; it needs Debian's python3-matplotlib and reads the PLY with ply_io
+(installed beside it; _isouq_path finds it).
 """
 import argparse
 import json
@@ -20,9 +21,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import meshio  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+
+import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
+import ply_io  # noqa: E402
 
 MAX_BARS = 48
 BELOW, ABOVE = "#3b6fb6", "#e8743b"
@@ -43,8 +46,7 @@ def save(fig, path):
 
 
 def column(mesh, name):
-    value = mesh.point_data.get(name)
-    return None if value is None else np.asarray(value).reshape(-1)
+    return mesh.vertex_attributes.get(name)
 
 
 def draw_cdf(mesh, summary, path):
@@ -80,13 +82,13 @@ def draw_cdf(mesh, summary, path):
     ax.grid(alpha=0.3)
 
     ax3 = fig.add_subplot(1, 2, 2, projection="3d")
-    tris = mesh.cells_dict.get("triangle", np.zeros((0, 3), int))
+    tris = mesh.triangles
     if tris.size and above is not None:
         hot = above[tris].max(axis=1) > 0
         colours = np.where(hot[:, None], matplotlib.colors.to_rgba_array(ABOVE),
                            matplotlib.colors.to_rgba_array(BELOW))
-        ax3.add_collection3d(Poly3DCollection(mesh.points[tris], facecolors=colours, edgecolor="none"))
-        lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+        ax3.add_collection3d(Poly3DCollection(mesh.positions[tris], facecolors=colours, edgecolor="none"))
+        lo, hi = mesh.positions.min(axis=0), mesh.positions.max(axis=0)
         ax3.set_xlim(lo[0], hi[0]); ax3.set_ylim(lo[1], hi[1]); ax3.set_zlim(lo[2], hi[2])
         ax3.set_box_aspect(hi - lo)
         ax3.view_init(elev=20, azim=-60)
@@ -181,7 +183,7 @@ def main(argv=None):
     parser.add_argument("--out", required=True)
     parser.add_argument("--html", action="store_true")
     args = parser.parse_args(argv)
-    mesh = meshio.read(args.mesh)
+    mesh = ply_io.read_ply(args.mesh, require_isouq=False)
     with open(args.summary) as f:
         summary = json.load(f)
     os.makedirs(args.out, exist_ok=True)

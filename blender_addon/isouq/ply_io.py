@@ -59,6 +59,13 @@ class IsouqMesh:
     def face_count(self):
         return len(self.loop_total)
 
+    @property
+    def triangles(self):
+        """(F, 3) int32 corners. @raise PlyError unless every face is a triangle (isouq's case)."""
+        if np.any(self.loop_total != 3):
+            raise PlyError("not a triangle mesh: a face has more than 3 corners")
+        return self.corners.reshape(-1, 3)
+
 
 def parse_header(data):
     """Returns (format, elements, comments, header_length) of PLY bytes `data`."""

@@ -5,45 +5,29 @@ from its edge, compare against the distance of two crossings (docs/nodes.md)."""
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
+import ply_io  # noqa: E402
+
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 GRAPHS = sorted(EXAMPLES.glob("*.json"))
 
-TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "int": "<i4", "int32": "<i4",
-         "uchar": "u1", "uint8": "u1", "uint": "<u4", "short": "<i2", "ushort": "<u2", "char": "i1"}
 
-
-def read_ply(path):
-    """The vertex element of an isouq PLY (binary little endian, docs/ply-format.md) read with
-    numpy (meshio cannot read faces with a `hidden` property). Returns (points float64 Nx3, {name: 1-D array} of the other vertex properties, 4x4 M)."""
-    with open(path, "rb") as f:
-        lines = []
-        while True:
-            line = f.readline().decode("ascii").strip()
-            lines.append(line)
-            if line == "end_header":
-                break
-        assert "format binary_little_endian 1.0" in lines
-        matrix, count, props, element = np.eye(4), 0, [], None
-        for line in lines:
-            words = line.split()
-            if line.startswith("comment isouq index_to_world"):
-                matrix = np.array([float(x) for x in words[3:]]).reshape(4, 4)
-            elif words[:1] == ["element"]:
-                element = words[1]
-                if element == "vertex":
-                    count = int(words[2])
-            elif words[:1] == ["property"] and element == "vertex":
-                props.append((words[2], TYPES[words[1]]))
-        vertices = np.frombuffer(f.read(count * np.dtype(props).itemsize), dtype=np.dtype(props), count=count)
-    points = np.stack([vertices[c] for c in "xyz"], axis=1).astype(np.float64)
-    data = {name: vertices[name] for name, _ in props if name not in "xyz"}
-    return points, data, matrix
+def load(path):
+    """An isouq PLY through the add-on's reader (ply_io): (points float64 Nx3, {name: 1-D array}
+    of the other vertex properties, 4x4 M)."""
+    data = Path(path).read_bytes()
+    assert b"\nformat binary_little_endian 1.0\n" in data[:64]
+    mesh = ply_io.read_ply_bytes(data, require_isouq=False)
+    matrix = np.eye(4) if mesh.index_to_world is None else mesh.index_to_world
+    return mesh.positions.astype(np.float64), mesh.vertex_attributes, matrix
 
 
 def crossing(data, matrix, method):
@@ -87,7 +71,7 @@ def test_examples_exist():
 def test_graph_outputs(graph, outputs):
     checked = 0
     for ply, summary in pairs(outputs[graph]):
-        points, data, matrix = read_ply(str(ply))
+        points, data, matrix = load(str(ply))
         assert len(points) == summary["vertices"]
         if "threshold" in summary:
             check_threshold(data, summary["threshold"])

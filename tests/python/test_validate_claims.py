@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "scripts"))
-from plot_validation import read_ply  # noqa: E402
+import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
+import ply_io  # noqa: E402
 
 CLI = os.environ.get("ISOUQ_CLI")
 
@@ -36,19 +37,25 @@ def case(report, field):
     return next(c for c in report["cases"] if c["field"] == field)
 
 
+def columns(path):
+    """Every vertex column of a validated mesh, x, y and z included."""
+    mesh = ply_io.read_ply(path, require_isouq=False)
+    return dict(zip("xyz", mesh.positions.T), **mesh.vertex_attributes)
+
+
 def edge_ends(v, c):
     n = c["resolution"]
     h = 2.0 / (n - 1)
     lower = np.stack([v["edge_i"], v["edge_j"], v["edge_k"]], axis=1) * h - 1.0
     step = np.zeros_like(lower)
-    step[np.arange(len(v)), v["edge_axis"]] = h
+    step[np.arange(len(lower)), v["edge_axis"]] = h
     return lower, step, h
 
 
 @pytest.mark.parametrize("field", sorted(FIELDS))
 def test_err_true_linear_matches_bisection(run, field):
     c = case(run, field)
-    v, _ = read_ply(c["mesh"])
+    v = columns(c["mesh"])
     lower, step, h = edge_ends(v, c)
     f = FIELDS[field]
     k = np.float64(np.float32(c["isovalue"]))
@@ -57,7 +64,7 @@ def test_err_true_linear_matches_bisection(run, field):
         p = lower + step * t[:, None]
         return f(p[:, 0], p[:, 1], p[:, 2]) - k
 
-    lo, hi = np.zeros(len(v)), np.ones(len(v))
+    lo, hi = np.zeros(len(lower)), np.ones(len(lower))
     glo = g(lo)
     for _ in range(60):
         mid = 0.5 * (lo + hi)
@@ -70,7 +77,7 @@ def test_err_true_linear_matches_bisection(run, field):
 
 def test_torus_dist_true_is_the_closed_form(run):
     c = case(run, "torus")
-    v, _ = read_ply(c["mesh"])
+    v = columns(c["mesh"])
     x, y, z = (v[a].astype(np.float64) for a in "xyz")
     exact = np.abs(np.sqrt((np.sqrt(x**2 + y**2) - 0.3) ** 2 + z**2) - 0.1)
     assert np.allclose(v["dist_true"], exact, rtol=1e-5, atol=1e-9)
@@ -78,7 +85,7 @@ def test_torus_dist_true_is_the_closed_form(run):
 
 def test_tables_are_the_columns(run):
     for c in run["cases"]:
-        v, _ = read_ply(c["mesh"])
+        v = columns(c["mesh"])
         for row in c["agreement"]:
             a, b = v[row["estimate"]].astype(np.float64), v[row["measured"]].astype(np.float64)
             ok = np.isfinite(a) & np.isfinite(b)
