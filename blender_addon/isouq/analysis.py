@@ -1,9 +1,10 @@
 # The numbers behind the analysis views (paper sec. 4.3, SPEC §7): numpy only, no bpy.
 #
 # Method switching (C3): a vertex of any method sits at M * ((i, j, k) + t * e_axis, 1) with M the
-# grid's index-to-world map (`comment isouq index_to_world`, SPEC §6 edge_i/j/k, edge_axis,
-# t_<method>). Files without the comment get M fitted by least squares from x, y, z and the
-# primary method's t (exact for an affine grid transform).
+# grid's index-to-world map (`comment isouq index_to_world`, SPEC §6 edge_i/j/k, edge_axis, and
+# the method's t column, named by the vocabulary: pipeline.Vocabulary). Files without the comment
+# get M fitted by least squares from x, y, z and the primary method's t (exact for an affine grid
+# transform).
 
 import numpy as np
 
@@ -14,13 +15,13 @@ def has_edges(attrs):
     return all(c in attrs for c in EDGE_COLUMNS)
 
 
-def index_points(attrs, method):
-    """(N, 3) index-space crossing of `method` for every vertex (NaN where t is NaN)."""
+def index_points(attrs, column):
+    """(N, 3) index-space crossing at t column `column` for every vertex (NaN where t is NaN)."""
     ijk = np.stack([attrs[c].astype(np.float64) for c in EDGE_COLUMNS[:3]], axis=1)
     axis = attrs["edge_axis"].astype(np.int64)
     if np.any((axis < 0) | (axis > 2)):
         raise ValueError("edge_axis outside 0..2")
-    t = attrs["t_" + method].astype(np.float64)
+    t = attrs[column].astype(np.float64)
     ijk[np.arange(len(axis)), axis] += t
     return ijk
 
@@ -29,9 +30,9 @@ def to_world(matrix, points):
     return points @ matrix[:3, :3].T + matrix[:3, 3]
 
 
-def fit_index_to_world(positions, attrs, method):
-    """Least-squares affine M with positions ~ M * index_points(method); None if degenerate."""
-    p = index_points(attrs, method)
+def fit_index_to_world(positions, attrs, column):
+    """Least-squares affine M with positions ~ M * index_points(column); None if degenerate."""
+    p = index_points(attrs, column)
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(positions), axis=1)
     if "hidden" in attrs:
         ok &= attrs["hidden"] == 0
@@ -45,20 +46,21 @@ def fit_index_to_world(positions, attrs, method):
 
 
 def guess_primary_method(positions, attrs, matrix, methods):
-    """The method whose crossings reproduce x, y, z best (used when the header does not say)."""
+    """The method (of {token: t column}) whose crossings reproduce x, y, z best (used when the
+    header does not say)."""
     best, best_err = None, np.inf
-    for method in methods:
-        w = to_world(matrix, index_points(attrs, method))
+    for method, column in methods.items():
+        w = to_world(matrix, index_points(attrs, column))
         err = np.nanmax(np.abs(w - positions)) if len(w) else 0.0
         if err < best_err:
             best, best_err = method, err
     return best
 
 
-def method_positions(positions, attrs, matrix, method):
-    """World positions of `method`'s crossings; vertices it cannot place (hidden-feature
-    vertices, NaN t) keep their stored position."""
-    w = to_world(matrix, index_points(attrs, method))
+def method_positions(positions, attrs, matrix, column):
+    """World positions of the crossings at t column `column`; vertices it cannot place
+    (hidden-feature vertices, NaN t) keep their stored position."""
+    w = to_world(matrix, index_points(attrs, column))
     keep = ~np.all(np.isfinite(w), axis=1)
     if "hidden" in attrs:
         keep |= attrs["hidden"] != 0
@@ -66,10 +68,10 @@ def method_positions(positions, attrs, matrix, method):
     return w.astype(np.float32)
 
 
-def mixed_positions(positions, attrs, matrix, selected, inside_method, outside_method):
-    """C3: `inside_method` where `selected`, `outside_method` elsewhere."""
-    inside = method_positions(positions, attrs, matrix, inside_method)
-    outside = method_positions(positions, attrs, matrix, outside_method)
+def mixed_positions(positions, attrs, matrix, selected, inside_column, outside_column):
+    """C3: the crossings at `inside_column` where `selected`, at `outside_column` elsewhere."""
+    inside = method_positions(positions, attrs, matrix, inside_column)
+    outside = method_positions(positions, attrs, matrix, outside_column)
     return np.where(selected[:, None], inside, outside)
 
 

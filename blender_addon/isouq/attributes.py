@@ -144,16 +144,16 @@ def remember_primary_positions(me):
         _set_checked(attr.data, "vector", get_positions(me), 3 * len(me.vertices))
 
 
-def index_to_world(me):
-    """M from the header, or fitted from positions and the primary t (analysis module)."""
+def index_to_world(me, primary_column):
+    """M from the header, or fitted from positions and the primary method's t column
+    `primary_column` (analysis module)."""
     stored = me.get("isouq_index_to_world")
     if stored is not None and len(stored) == 16:
         return np.array(stored, np.float64).reshape(4, 4)
     attrs = vertex_attributes(me)
-    method = me.get("isouq_method", "linear")
-    if not analysis.has_edges(attrs) or f"t_{method}" not in attrs:
+    if not analysis.has_edges(attrs) or primary_column not in attrs:
         return None
-    m = analysis.fit_index_to_world(stored_positions(me), attrs, method)
+    m = analysis.fit_index_to_world(stored_positions(me), attrs, primary_column)
     if m is not None:
         me["isouq_index_to_world"] = [float(v) for v in m.ravel()]
         me["isouq_index_to_world_fitted"] = True

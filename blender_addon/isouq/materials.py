@@ -88,7 +88,7 @@ def _heat_colour(nodes, links, measure, vmin, vmax):
     return ramp.outputs["Color"], attr.outputs["Fac"]
 
 
-def heatmap_material(measure="err_est", vmin=0.0, vmax=1.0):
+def heatmap_material(measure, vmin=0.0, vmax=1.0):
     """C4: `measure` through the colormap; AOV `measure` carries the raw value."""
     mat, nodes, links = _fresh("ISOUQ_heatmap")
     colour, value = _heat_colour(nodes, links, measure, vmin, vmax)
@@ -174,7 +174,7 @@ def _hidden_mask(nodes, links):
     return both.outputs["Value"]
 
 
-def combined_material(measure="err_est", vmin=0.0, vmax=1.0):
+def combined_material(measure, vmin=0.0, vmax=1.0):
     """Heat map of `measure`, green where the face comes from hidden-feature refinement."""
     mat, nodes, links = _fresh("ISOUQ_combined")
     colour, value = _heat_colour(nodes, links, measure, vmin, vmax)

@@ -11,20 +11,26 @@ import tempfile
 from dataclasses import dataclass, field
 
 ENV_BINARY = "ISOUQ_CLI"
-METHODS = ("linear", "cubic", "weno", "weno-paper")
 _PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
+_T_COLUMN = re.compile(r"^t_(\w+)$")
+_READ_ERRORS = (OSError, RuntimeError, KeyError, TypeError, ValueError, subprocess.TimeoutExpired)
 
 
-def node_specs(binary):
-    """The node declarations of `isouq nodes --json` (format "isouq-nodes", version 1), by type:
-    the one source of parameter names, menus and tooltips that the CLI and graphs also use."""
+def nodes_document(binary):
+    """`isouq nodes --json` (format "isouq-nodes", version 1): node declarations and the column
+    and method tables, the one source of names that the CLI and graphs also use."""
     done = subprocess.run([binary, "nodes", "--json"], capture_output=True, text=True, timeout=60)
     if done.returncode != 0:
         raise RuntimeError(f"'{binary} nodes --json' failed: {done.stderr.strip() or done.returncode}")
     doc = json.loads(done.stdout)
     if doc.get("format") != "isouq-nodes" or doc.get("format_version") != 1:
         raise RuntimeError(f"'{binary} nodes --json' is not isouq-nodes version 1")
-    return {node["type"]: node for node in doc["nodes"]}
+    return doc
+
+
+def node_specs(binary):
+    """The node declarations of `isouq nodes --json` by type: parameter names, menus, tooltips."""
+    return {node["type"]: node for node in nodes_document(binary)["nodes"]}
 
 
 def parm_spec(specs, node_type, token):
@@ -40,8 +46,65 @@ def method_menu(binary):
     cannot say (an older build): then the CLI itself rejects an unknown method."""
     try:
         return parm_spec(node_specs(binary), "mesh", "method")["menu"]
-    except (OSError, RuntimeError, KeyError, ValueError, subprocess.TimeoutExpired):
+    except _READ_ERRORS:
         return None
+
+
+@dataclass(frozen=True)
+class Vocabulary:
+    """Mesh column names and method tokens (SPEC §6, §10): `columns` holds {name, type, element,
+    description, measure, summary} (the add-on reads name, description, measure and summary),
+    `methods` {token, label, column}, both in table order."""
+    columns: tuple
+    methods: tuple
+
+    def measures(self):
+        """Vertex columns to threshold or heat-map."""
+        return [c["name"] for c in self.columns if c["measure"]]
+
+    def summarised(self):
+        """Vertex columns whose {min, max, mean, rms} the summary reports."""
+        return [c["name"] for c in self.columns if c["summary"]]
+
+    def description(self, name):
+        return next((c["description"] for c in self.columns if c["name"] == name), "")
+
+    def method_columns(self):
+        """{method token: its t column}."""
+        return {m["token"]: m["column"] for m in self.methods}
+
+
+_vocabularies = {}
+
+
+def vocabulary(binary):
+    """The `columns` and `methods` tables of `binary nodes --json`, read once per build of the
+    binary (path and modification time). None without a binary or from one that lacks them."""
+    try:
+        key = (binary, os.stat(binary).st_mtime_ns)
+    except (OSError, TypeError):
+        return None
+    if key not in _vocabularies:
+        try:
+            doc = nodes_document(binary)
+            _vocabularies[key] = Vocabulary(tuple(doc["columns"]), tuple(doc["methods"]))
+        except _READ_ERRORS:
+            _vocabularies[key] = None
+    return _vocabularies[key]
+
+
+def mesh_vocabulary(vertex_columns):
+    """What a mesh's own vertex columns (name -> numpy type string, e.g. "<f4") tell when no
+    binary can: a method per t_<name> column (token <name>), and every other float column is a
+    measure that the summary panel lists."""
+    columns, methods = [], []
+    for name, dtype in vertex_columns.items():
+        method = _T_COLUMN.match(name)
+        if method:
+            methods.append({"token": method.group(1), "label": method.group(1), "column": name})
+        number = dtype.lstrip("<>=|")[:1] == "f" and not method
+        columns.append({"name": name, "description": "", "measure": number, "summary": number})
+    return Vocabulary(tuple(columns), tuple(methods))
 
 
 def repo_binaries():
@@ -94,7 +157,7 @@ class MeshRequest:
     """Arguments of `isouq mesh INPUT -o OUT.ply ...`."""
     input: str
     isovalue: float = None
-    method: str = "weno"
+    method: str = None              # None: the CLI's default
     hidden_features: bool = False
     subdivisions: int = 4
     grid: str = ""
@@ -102,9 +165,10 @@ class MeshRequest:
     resolution: int = 0
 
     def command(self, binary, out, summary, hidden_out=None):
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method '{self.method}'")
-        cmd = [binary, "mesh", self.input, "-o", out, "--method", self.method, "--summary", summary]
+        cmd = [binary, "mesh", self.input, "-o", out]
+        if self.method:
+            cmd += ["--method", self.method]
+        cmd += ["--summary", summary]
         if self.isovalue is not None:
             cmd += ["--isovalue", repr(float(self.isovalue))]
         if self.hidden_features:

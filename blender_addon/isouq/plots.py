@@ -26,7 +26,7 @@ def _draw_cdf(ax, values, threshold, measure):
     ax.grid(alpha=0.3)
 
 
-def cdf_plot(path, values, threshold=None, measure="err_est", size=(4.0, 3.0)):
+def cdf_plot(path, values, threshold, measure, size=(4.0, 3.0)):
     """C1: cumulative distribution of `values` with the threshold as a vertical line."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=size, dpi=100)
@@ -52,7 +52,7 @@ def _colorbar(fig, cax, vmin, vmax, measure, colormap, extend="neither"):
     return bar
 
 
-def legend_plot(path, vmin, vmax, measure="err_est", colormap="plasma", size=(4.0, 0.9),
+def legend_plot(path, vmin, vmax, measure, colormap="plasma", size=(4.0, 0.9),
                 extend="neither"):
     """C4 legend: the heat map's colormap from vmin to vmax (`extend="max"` when values above
     vmax are clamped to its colour)."""
@@ -119,7 +119,7 @@ def figure(path, image_path, title, colorbar=None, swatches=(), cdf=None, width=
     if cdf:
         cax = fig.add_axes([(width + 0.12 * side) / total_w, (key + 0.5) / total_h,
                             0.8 * side / total_w, (width * aspect - 0.9) / total_h])
-        _draw_cdf(cax, cdf["values"], cdf.get("threshold"), cdf.get("measure", "err_est"))
+        _draw_cdf(cax, cdf["values"], cdf.get("threshold"), cdf["measure"])
     _save_small(fig, path, dpi)
     plt.close(fig)
     return path

@@ -5,7 +5,6 @@
 # little-endian; big-endian is accepted too).
 
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -246,12 +245,3 @@ def read_ply(path, require_isouq=True):
         data = f.read()
     return read_ply_bytes(data, require_isouq)
 
-
-METHODS = ("linear", "cubic", "weno")
-_METHOD_T = re.compile(r"^t_(\w+)$")
-
-
-def available_methods(mesh):
-    """Methods whose `t_<method>` column is present, in SPEC order first."""
-    found = [m.group(1) for m in map(_METHOD_T.match, mesh.vertex_attributes) if m]
-    return [m for m in METHODS if m in found] + [m for m in found if m not in METHODS]

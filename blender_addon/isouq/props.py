@@ -1,16 +1,69 @@
 # Scene.isouq (the analysis views' settings, SPEC §7) and Object.isouq (what an object is).
+#
+# The measure and method menus list the vocabulary of `isouq nodes --json` (its `columns` and
+# `methods` tables) from the binary that pipeline.find_binary() finds. Without one (or with one
+# too old to print them) they list what the scene's isouq meshes' own columns tell
+# (pipeline.mesh_vocabulary). Enum numbers are a hash of the token, so a saved choice keeps its
+# meaning whichever list is shown; the defaults are the only tokens spelled here.
+
+import json
+import zlib
 
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty,
                        IntProperty, PointerProperty, StringProperty)
 
-MEASURES = [(m, m, f"Per-vertex {m} (SPEC §6)") for m in (
-    "err_est", "err_bound", "d_lc", "d_lw", "d_cw", "max_var",
-    "err_true_linear", "err_true_cubic", "err_true_weno")]
-VIEW_METHODS = [("linear", "Linear", "Linear crossing (t_linear)"),
-                ("cubic", "Cubic", "4-point Lagrange cubic crossing (t_cubic)"),
-                ("weno", "WENO", "WENO crossing (t_weno)")]
-RUN_METHODS = VIEW_METHODS + [("weno-paper", "WENO (paper)", "Paper's constant weights")]
+from . import pipeline
+
+
+def vocabulary(context=None, columns=None):
+    """The binary's vocabulary (pipeline.vocabulary), else that of `columns` (name -> numpy
+    type string), by default the vertex columns of the scene's isouq meshes."""
+    context = context or bpy.context
+    addon = context.preferences.addons.get(__package__)
+    binary, _ = pipeline.find_binary(addon.preferences.binary if addon else "")
+    found = pipeline.vocabulary(binary)
+    if found is not None:
+        return found
+    return pipeline.mesh_vocabulary(_scene_columns(context) if columns is None else columns)
+
+
+def _scene_columns(context):
+    """name -> PLY type of the vertex columns of the scene's isouq meshes (attributes.py keeps
+    the types in mesh["isouq_ply_types"])."""
+    columns = {}
+    for obj in getattr(getattr(context, "scene", None), "objects", ()):
+        if obj.type != "MESH" or obj.isouq.role == "NONE":
+            continue
+        for name, ply in json.loads(obj.data.get("isouq_ply_types", "{}")).items():
+            attr = obj.data.attributes.get(name)
+            if attr is not None and attr.domain == "POINT":
+                columns.setdefault(name, ply["dtype"])
+    return columns
+
+
+def number(token):
+    """The enum number of `token`: the same in every list that holds it."""
+    return zlib.crc32(token.encode()) & 0x7FFFFFFF
+
+
+_items = {}   # Blender keeps pointers into the items' strings: every list stays alive here
+
+
+def _enum(entries):
+    key = tuple(entries)
+    return _items.setdefault(key, list(key))
+
+
+def measure_items(self, context):
+    v = vocabulary(context)
+    return _enum((name, name, v.description(name), number(name)) for name in v.measures())
+
+
+def method_items(self, context):
+    v = vocabulary(context)
+    return _enum((m["token"], m["label"], v.description(m["column"]), number(m["token"]))
+                 for m in v.methods)
 
 
 def _update_threshold(self, context):
@@ -24,7 +77,7 @@ def _update_heat_range(self, context):
 
 
 class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
-    measure: EnumProperty(name="Measure", items=MEASURES, default="err_est")
+    measure: EnumProperty(name="Measure", items=measure_items, default=number("err_est"))
     # C1 threshold
     threshold_mode: EnumProperty(name="Threshold by", items=[
         ("VALUE", "Value", "Threshold in world units"),
@@ -44,13 +97,14 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     selection: EnumProperty(name="Selection", items=[
         ("THRESHOLD", "Threshold", "Vertices whose measure is above the threshold"),
         ("BOX", "Box", "Vertices inside the box")], default="THRESHOLD")
-    method_inside: EnumProperty(name="Inside", items=VIEW_METHODS, default="weno")
-    method_outside: EnumProperty(name="Outside", items=VIEW_METHODS, default="linear")
+    method_inside: EnumProperty(name="Inside", items=method_items, default=number("weno"))
+    method_outside: EnumProperty(name="Outside", items=method_items, default=number("linear"))
     # C4 heat map
     heat_min: FloatProperty(name="Min", default=0.0, precision=6, update=_update_heat_range)
     heat_max: FloatProperty(name="Max", default=1.0, precision=6, update=_update_heat_range)
     # C6 comparison
-    compare_method: EnumProperty(name="Compare with", items=VIEW_METHODS, default="linear")
+    compare_method: EnumProperty(name="Compare with", items=method_items,
+                                 default=number("linear"))
     # pipeline
     input_path: StringProperty(name="Input", subtype="FILE_PATH",
                                description="A .vdb or .raw file, or field:NAME / formula:EXPR (SPEC §8)")
@@ -61,7 +115,7 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     use_isovalue: BoolProperty(name="Isovalue", default=False,
                                description="Pass --isovalue (else the CLI's default)")
     isovalue: FloatProperty(name="Isovalue", default=0.0, precision=6)
-    method: EnumProperty(name="Method", items=RUN_METHODS, default="weno")
+    method: EnumProperty(name="Method", items=method_items, default=number("weno"))
     hidden_features: BoolProperty(name="Hidden features", default=False)
     subdivisions: IntProperty(name="Subdivisions", default=4, min=2, max=16)
     grid: StringProperty(name="Grid", description="Grid name (--grid); empty: first float grid")

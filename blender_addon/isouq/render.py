@@ -85,7 +85,7 @@ def configure(scene, engine="BLENDER_EEVEE", size=800, samples=16):
 
 
 def render_view(context, objects, path, engine="BLENDER_EEVEE", size=800, exr_path=None,
-                aovs=("err_est", "hidden"), samples=16, direction=(1.0, -1.2, 0.8), frame=True):
+                aovs=(), samples=16, direction=(1.0, -1.2, 0.8), frame=True):
     """Renders `objects` (framed, or with the current camera when not `frame`) to the PNG
     `path`; with `exr_path` also a multilayer EXR holding the combined pass and the shader AOVs
     `aovs`. Returns the paths written."""

@@ -8,7 +8,9 @@ import tempfile
 import bpy
 import numpy as np
 
-from . import analysis, attributes, materials, ply_io, plots
+from . import analysis, attributes, materials, ply_io, plots, props
+
+BAR_COLUMNS = ("err_est", "d_lc", "d_lw")     # C5 (paper sec. 4.3): e and two method distances
 
 
 class ViewError(Exception):
@@ -22,14 +24,15 @@ def import_ply(context, path, name=None, role="MESH"):
     Nothing is created when reading or checking fails (ply_io.PlyError / ValueError)."""
     mesh = ply_io.read_ply(path)
     name = name or os.path.splitext(os.path.basename(path))[0]
-    methods = ply_io.available_methods(mesh)
-    if not mesh.method and methods and analysis.has_edges(mesh.vertex_attributes):
+    columns = mesh.vertex_attributes
+    vocabulary = props.vocabulary(context, {n: c.dtype.str for n, c in columns.items()})
+    methods = {m: c for m, c in vocabulary.method_columns().items() if c in columns}
+    if not mesh.method and methods and analysis.has_edges(columns):
         matrix = mesh.index_to_world
         if matrix is None:
-            matrix = analysis.fit_index_to_world(mesh.positions, mesh.vertex_attributes, methods[0])
+            matrix = analysis.fit_index_to_world(mesh.positions, columns, next(iter(methods.values())))
         if matrix is not None:
-            mesh.method = analysis.guess_primary_method(mesh.positions, mesh.vertex_attributes,
-                                                        matrix, methods)
+            mesh.method = analysis.guess_primary_method(mesh.positions, columns, matrix, methods)
     me = attributes.build_mesh(name, mesh)
     attributes.remember_primary_positions(me)
     obj = bpy.data.objects.new(name, me)
@@ -37,9 +40,10 @@ def import_ply(context, path, name=None, role="MESH"):
     obj.isouq.role = role
     obj.isouq.source = path
     obj.isouq.method_shown = mesh.method or ""
-    if "err_est" in mesh.vertex_attributes:
-        lo, hi = value_range(mesh.vertex_attributes["err_est"])
-        materials.assign(obj, materials.heatmap_material("err_est", lo, hi))
+    measure = next((m for m in vocabulary.measures() if m in columns), None)
+    if measure:
+        lo, hi = value_range(columns[measure])
+        materials.assign(obj, materials.heatmap_material(measure, lo, hi))
     else:
         materials.assign(obj, materials.standard_material())
     return obj
@@ -159,30 +163,37 @@ def selection_mask(context, obj):
     return analysis.above(values, resolve_threshold(s, values))
 
 
-def _method_inputs(obj, *methods):
+def _method_inputs(context, obj, *methods):
+    """(primary positions, attributes, M, the t column of each of `methods`)."""
     me = obj.data
     attrs = attributes.vertex_attributes(me)
     if not analysis.has_edges(attrs):
         raise ViewError(f"'{obj.name}' has no edge_i/j/k and edge_axis: cannot switch methods")
+    known = props.vocabulary(context).method_columns()
     for m in methods:
-        if f"t_{m}" not in attrs:
-            raise ViewError(f"'{obj.name}' has no t_{m}: the file was written without {m}")
-    matrix = attributes.index_to_world(me)
+        if m not in known:
+            raise ViewError(f"unknown method '{m}' (known: {', '.join(known)})")
+        if known[m] not in attrs:
+            raise ViewError(f"'{obj.name}' has no {known[m]}: the file was written without {m}")
+    primary = known.get(me.get("isouq_method")) or next(
+        (c for c in known.values() if c in attrs), None)
+    matrix = attributes.index_to_world(me, primary)
     if matrix is None:
         raise ViewError("no index_to_world header and too few vertices to fit one")
-    return attributes.stored_positions(me), attrs, matrix
+    return attributes.stored_positions(me), attrs, matrix, [known[m] for m in methods]
 
 
 def apply_methods(context, obj):
     """C3: inside method where selected, outside method elsewhere, at once (no rerun).
     Returns the number of selected vertices."""
     s = context.scene.isouq
-    positions, attrs, matrix = _method_inputs(obj, s.method_inside, s.method_outside)
+    positions, attrs, matrix, (inside, outside) = _method_inputs(context, obj, s.method_inside,
+                                                                 s.method_outside)
     mask = selection_mask(context, obj)
     if s.method_inside != s.method_outside and not mask.any():
         raise ViewError("the selection is empty: lower the threshold or move the box")
     attributes.set_positions(obj.data, analysis.mixed_positions(
-        positions, attrs, matrix, mask, s.method_inside, s.method_outside))
+        positions, attrs, matrix, mask, inside, outside))
     store_selection(obj, mask)
     obj.isouq.method_shown = (s.method_inside if s.method_inside == s.method_outside
                               else f"{s.method_inside} inside, {s.method_outside} outside")
@@ -207,15 +218,15 @@ def apply_heatmap(context, obj, reset_range=True):
 
 
 def plot_bars(context, obj):
-    """C5: bars of err_est, d_lc, d_lw (those present) for the vertices in the box."""
+    """C5: bars of BAR_COLUMNS (those present) for the vertices in the box."""
     mask = box_selection(context, obj)
     idx = np.flatnonzero(mask)
     if len(idx) == 0:
         raise ViewError("the box contains no vertex: nothing to plot")
-    cols = {n: attributes.get_attribute(obj.data, n) for n in ("err_est", "d_lc", "d_lw")}
+    cols = {n: attributes.get_attribute(obj.data, n) for n in BAR_COLUMNS}
     cols = {n: v.astype(np.float64) for n, v in cols.items() if v is not None}
     if not cols:
-        raise ViewError(f"'{obj.name}' has none of err_est, d_lc, d_lw")
+        raise ViewError(f"'{obj.name}' has none of {', '.join(BAR_COLUMNS)}")
     return len(idx), plots.bars_plot(plot_path("bars"), cols, idx)
 
 
@@ -224,7 +235,7 @@ def plot_bars(context, obj):
 def compare_methods(context, obj):
     """Side by side: a copy showing `compare_method`, shifted by 1.2 x the mesh width."""
     s = context.scene.isouq
-    positions, attrs, matrix = _method_inputs(obj, s.compare_method)
+    positions, attrs, matrix, (column,) = _method_inputs(context, obj, s.compare_method)
     name = f"{obj.name}_{s.compare_method}"
     old = bpy.data.objects.get(name)
     if old is not None and old.isouq.role == "COMPARE":
@@ -232,8 +243,7 @@ def compare_methods(context, obj):
     copy = obj.copy()
     copy.data = obj.data.copy()
     copy.name = name
-    attributes.set_positions(copy.data, analysis.method_positions(positions, attrs, matrix,
-                                                                  s.compare_method))
+    attributes.set_positions(copy.data, analysis.method_positions(positions, attrs, matrix, column))
     p = world_points(obj)
     width = float(p[:, 0].max() - p[:, 0].min()) if len(p) else 1.0
     copy.location = obj.location + type(obj.location)((1.2 * width, 0, 0))
@@ -293,7 +303,7 @@ def summary(context, obj):
     if values is not None:
         n = int(analysis.above(values, s.threshold_value).sum())
         rows.append((f"{s.measure} > {s.threshold_value:.4g}", f"{n} ({100 * n / max(len(values), 1):.1f}%)"))
-    for measure, *_ in _measures():
+    for measure in props.vocabulary(context).summarised():
         st = data.get(measure)
         if st is None:
             v = attributes.get_attribute(me, measure)
@@ -307,8 +317,3 @@ def summary(context, obj):
             if key in hidden:
                 rows.append((f"hidden {key}", hidden[key]))
     return rows
-
-
-def _measures():
-    from .props import MEASURES
-    return MEASURES

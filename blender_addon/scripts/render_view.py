@@ -3,8 +3,8 @@
 #   blender -b --factory-startup --python-exit-code 1 -P blender_addon/scripts/render_view.py -- \
 #       --mesh MESH.ply [--hidden HF.ply] [--summary S.json] \
 #       --view standard|heatmap|threshold|methods|compare|hidden|combined --out OUT.png \
-#       [--exr OUT.exr] [--engine eevee|cycles] [--size 800] [--measure err_est] \
-#       [--threshold V | --percentile P] [--inside weno --outside linear] [--compare-method weno] \
+#       [--exr OUT.exr] [--engine eevee|cycles] [--size 800] [--measure NAME] \
+#       [--threshold V | --percentile P] [--inside M --outside M] [--compare-method weno] \
 #       [--cdf CDF.png] [--legend LEGEND.png] [--direction X,Y,Z] [--clip-percentile P]
 #       [--figure FIG.png --title TEXT]
 #
@@ -13,7 +13,8 @@
 # --compare-method side by side), hidden C6 (hidden-feature surface in transparent orange over
 # standard MC in blue), combined (heat map + hidden features). --figure composes the render
 # with its title and key (colorbar or colour swatches; the CDF beside the threshold view) for
-# documents. Errors: one line, exit status 2.
+# documents. --measure, --inside and --outside default to the add-on's Scene.isouq defaults.
+# Errors: one line, exit status 2.
 
 import argparse
 import os
@@ -40,12 +41,12 @@ def parse(argv):
     p.add_argument("--engine", default="eevee", choices=["eevee", "cycles"])
     p.add_argument("--size", type=int, default=800)
     p.add_argument("--samples", type=int, default=16)
-    p.add_argument("--measure", default="err_est")
+    p.add_argument("--measure")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--threshold", type=float)
     group.add_argument("--percentile", type=float, default=90.0)
-    p.add_argument("--inside", default="weno")
-    p.add_argument("--outside", default="linear")
+    p.add_argument("--inside")
+    p.add_argument("--outside")
     p.add_argument("--compare-method", default="weno")
     p.add_argument("--cdf", help="also write the C1 CDF plot here")
     p.add_argument("--legend", help="also write the C4 legend here")
@@ -147,20 +148,24 @@ def main():
     addon_utils.enable("isouq", default_set=False)
     context = bpy.context
     s = context.scene.isouq
-    s.measure = args.measure
-    if args.threshold is not None:
-        s.threshold_mode, s.threshold_value = "VALUE", args.threshold
-    else:
-        s.threshold_mode, s.threshold_percentile = "PERCENTILE", args.percentile
-    s.method_inside, s.method_outside = args.inside, args.outside
-    s.compare_method = args.compare_method
-
     obj = views.import_ply(context, args.mesh, role="MESH")
     if args.summary:
         views.load_summary(obj, args.summary)
     if args.hidden:
         hidden = views.import_ply(context, args.hidden, obj.name + "_hidden", "HIDDEN")
         obj.isouq.partner, hidden.isouq.partner = hidden, obj
+    # menus without a binary list the imported meshes' columns: set them after the import
+    if args.measure:
+        s.measure = args.measure
+    if args.inside:
+        s.method_inside = args.inside
+    if args.outside:
+        s.method_outside = args.outside
+    if args.threshold is not None:
+        s.threshold_mode, s.threshold_value = "VALUE", args.threshold
+    else:
+        s.threshold_mode, s.threshold_percentile = "PERCENTILE", args.percentile
+    s.compare_method = args.compare_method
 
     has_measure = obj.data.attributes.get(s.measure) is not None
     clipped = False

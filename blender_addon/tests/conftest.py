@@ -1,12 +1,22 @@
 # Shared fixtures: the add-on enabled once per session, an empty scene per test, fixture PLYs.
+# Without a real isouq binary the fake CLI stands in as $ISOUQ_CLI, so the add-on's menus always
+# list a binary's vocabulary (test_real_cli keeps the fake's tables equal to the real ones).
+
+import os
 
 import addon_utils
 import bpy
 import pytest
 
 import plyfixture
+from isouq import pipeline
 
 ADDON = "isouq"
+FAKE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fake_isouq.py")
+REAL_CLI, REAL_CLI_TRIED = pipeline.find_binary("")
+if REAL_CLI is None or os.path.samefile(REAL_CLI, FAKE):
+    REAL_CLI = None
+    os.environ[pipeline.ENV_BINARY] = FAKE
 
 
 def enable():

@@ -1,7 +1,9 @@
 #!/usr/bin/python3
-# A stand-in for the isouq CLI (SPEC §8) in the pipeline tests. FAKE_ISOUQ_MODE picks the
-# behaviour: ok (copy FAKE_ISOUQ_PLY to -o, write --summary and --hidden-out), fail (exit 2 with
-# an `isouq: error:` line), garbage (a truncated PLY, exit 0), sleep (until SIGINT, exit 130).
+# A stand-in for the isouq CLI (SPEC §8) in the pipeline tests. `nodes --json` prints the mesh
+# node's method menu and the `columns` and `methods` tables (SPEC §10; test_real_cli checks them
+# against the real binary's). For `mesh`, FAKE_ISOUQ_MODE picks the behaviour: ok (copy
+# FAKE_ISOUQ_PLY to -o, write --summary and --hidden-out), fail (exit 2 with an `isouq: error:`
+# line), garbage (a truncated PLY, exit 0), sleep (until SIGINT, exit 130).
 # The command line is appended as JSON to FAKE_ISOUQ_LOG.
 
 import json
@@ -15,6 +17,35 @@ args = sys.argv[1:]
 if os.environ.get("FAKE_ISOUQ_LOG"):
     with open(os.environ["FAKE_ISOUQ_LOG"], "a") as log:
         log.write(json.dumps(args) + "\n")
+if args == ["nodes", "--json"]:
+    methods = [{"token": "linear", "label": "Linear", "column": "t_linear"},
+               {"token": "cubic", "label": "Cubic", "column": "t_cubic"},
+               {"token": "weno", "label": "WENO", "column": "t_weno"},
+               {"token": "weno-paper", "label": "WENO (paper)", "column": "t_weno_paper"}]
+    column = lambda name, kind, text, measure=False, summary=False, element="vertex": {
+        "name": name, "type": kind, "element": element, "description": text,
+        "measure": measure, "summary": summary}
+    columns = [column(a, "float32", f"position {a}") for a in "xyz"]
+    columns += [column(m["column"], "float32", f"{m['label']} crossing along the edge")
+                for m in methods]
+    columns += [column(f"edge_{a}", "int32", f"edge voxel {a}") for a in "ijk"]
+    columns += [column("edge_axis", "uint8", "edge axis"), column("order", "uint8", "order used")]
+    columns += [column(name, "float32", f"measure {name}", True, summary) for name, summary in (
+        ("err_est", True), ("err_bound", True), ("err_best", True), ("err_best_surface", False),
+        ("err_est_cubic", False), ("err_est_weno", False), ("d_lc", True), ("d_lw", True),
+        ("d_cw", True), ("max_var", True), ("err_true_linear", True), ("err_true_cubic", True),
+        ("err_true_weno", True), ("err_true_weno_paper", True), ("dist_true", True),
+        ("dist_true_linear", False), ("dist_true_cubic", False), ("dist_true_weno", False),
+        ("dist_true_weno_paper", False), ("dist_metro_linear", False))]
+    columns += [column(name, "uint8", name) for name in ("hidden", "above", "in_box")]
+    columns += [column("compare_dist", "float32", "distance of two crossings", True, True),
+                column("vertex_indices", "list", "triangle corners", element="face"),
+                column("hidden", "uint8", "refined face", element="face")]
+    mesh = {"type": "mesh", "parms": [{"token": "method", "default": "weno",
+                                       "menu": [m["token"] for m in methods]}]}
+    json.dump({"format": "isouq-nodes", "format_version": 1, "nodes": [mesh],
+               "columns": columns, "methods": methods}, sys.stdout)
+    sys.exit(0)
 mode = os.environ.get("FAKE_ISOUQ_MODE", "ok")
 opt = lambda name: args[args.index(name) + 1] if name in args else None
 out = opt("-o")

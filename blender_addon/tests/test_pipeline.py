@@ -9,11 +9,10 @@ import time
 import bpy
 import pytest
 
-from conftest import scene_delta, snapshot
+from conftest import FAKE, scene_delta, snapshot
 from isouq import pipeline
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-FAKE = os.path.join(HERE, "fake_isouq.py")
 DATA = os.environ.get("ISOUQ_DATA_DIR", os.path.join(HERE, "..", "..", "..", "shared", "data"))
 SPHERE_VDB = os.path.join(DATA, "sphere.vdb")
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from mathutils import Euler, Vector
 
-from conftest import make_box
+from conftest import FAKE, REAL_CLI, REAL_CLI_TRIED, make_box
 from isouq import pipeline
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -25,10 +25,9 @@ SPEC_ATTRIBUTES = {"edge_i", "edge_j", "edge_k", "edge_axis", "t_linear", "t_cub
 
 @pytest.fixture(scope="module")
 def cli():
-    binary, tried = pipeline.find_binary("")
-    if binary is None:
-        pytest.skip(f"no isouq binary (tried {tried}): build the `isouq` target")
-    return binary
+    if REAL_CLI is None:
+        pytest.skip(f"no isouq binary (tried {REAL_CLI_TRIED}): build the `isouq` target")
+    return REAL_CLI
 
 
 def run_cli(binary, *args):
@@ -283,12 +282,24 @@ def test_hidden_features_from_blender_reconnect_the_teardrop(cli, tmp_path):
 
 
 def test_node_declarations_match_the_addon(cli):
-    """`isouq nodes --json` is the one declaration of parameters (issue 5): the add-on's method
-    menus are the mesh and method-blend nodes' menus, token for token."""
+    """`isouq nodes --json` is the one declaration of parameters (issue 5) and names (issue 10):
+    the add-on's method menus are the mesh and method-blend nodes' menus, token for token, its
+    measure menu is the table's measure columns with the first as default, and the fake CLI of
+    the other tests prints the same tables."""
     from isouq import props
     specs = pipeline.node_specs(cli)
-    run_tokens = [item[0] for item in props.RUN_METHODS]
-    view_tokens = [item[0] for item in props.VIEW_METHODS]
+    s = bpy.context.scene.isouq
+    run_tokens = [item[0] for item in props.method_items(s, bpy.context)]
     assert pipeline.method_menu(cli) == run_tokens
-    assert set(view_tokens) <= set(pipeline.parm_spec(specs, "method_blend", "inside")["menu"])
+    assert set(run_tokens) <= set(pipeline.parm_spec(specs, "method_blend", "inside")["menu"])
     assert pipeline.parm_spec(specs, "read_volume", "resolution")["type"] == "int"
+    real = pipeline.nodes_document(cli)
+    measures = [c["name"] for c in real["columns"] if c["measure"]]
+    assert [item[0] for item in props.measure_items(s, bpy.context)] == measures
+    assert s.measure == measures[0]
+    assert run_tokens == [m["token"] for m in real["methods"]]
+    fake = pipeline.nodes_document(FAKE)
+    assert fake["methods"] == real["methods"]
+    keys = ("name", "type", "element", "measure", "summary")
+    assert ([[c[k] for k in keys] for c in fake["columns"]]
+            == [[c[k] for k in keys] for c in real["columns"]])

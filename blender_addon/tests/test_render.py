@@ -11,7 +11,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from isouq import attributes, pipeline, render, views
+from conftest import REAL_CLI, REAL_CLI_TRIED
+from isouq import attributes, render, views
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCRIPT = os.path.join(HERE, "..", "scripts", "render_view.py")
@@ -96,10 +97,9 @@ def test_exr_err_est_pass_of_the_teardrop_demo_follows_the_attribute(tmp_path):
     attribute interpolated over the triangle under the pixel, so its value lies within the
     range of err_est over the vertex's 1-ring, except where anti-aliasing mixes in another
     triangle; and it ranks like the attribute."""
-    binary, tried = pipeline.find_binary("")
-    if binary is None:
-        pytest.skip(f"no isouq binary (tried {tried})")
-    demo = subprocess.run([binary, "demo", "--dir", str(tmp_path)], capture_output=True,
+    if REAL_CLI is None:
+        pytest.skip(f"no isouq binary (tried {REAL_CLI_TRIED})")
+    demo = subprocess.run([REAL_CLI, "demo", "--dir", str(tmp_path)], capture_output=True,
                           text=True, timeout=600)
     assert demo.returncode == 0, demo.stderr[-500:]
     ply, exr, size, direction = str(tmp_path / "teardrop.ply"), str(tmp_path / "heat.exr"), 256, \

@@ -250,6 +250,29 @@ def test_summary_lists_counts_and_statistics(sphere, tmp_path):
     assert rows["d_lc"] == f"max {d.max():.3g} mean {d.mean():.3g} rms {math.sqrt((d * d).mean()):.3g}"
 
 
+def test_menus_without_a_binary_list_the_meshes_columns(sphere_ply, tmp_path):
+    """No binary: the menus hold what the scene's isouq meshes carry; the defaults still hold."""
+    from isouq import props, views
+    prefs = bpy.context.preferences.addons["isouq"].preferences
+    prefs.binary = str(tmp_path / "no_isouq")
+    try:
+        s = bpy.context.scene.isouq
+        assert props.measure_items(s, bpy.context) == []
+        assert props.method_items(s, bpy.context) == []
+        assert bpy.ops.isouq.import_mesh(filepath=sphere_ply[0]) == {"FINISHED"}
+        attrs = sphere_ply[1][2]
+        floats = [n for n, v in attrs.items() if v.dtype.kind == "f" and not n.startswith("t_")]
+        assert [i[0] for i in props.measure_items(s, bpy.context)] == floats
+        assert ([i[0] for i in props.method_items(s, bpy.context)]
+                == [n[2:] for n in attrs if n.startswith("t_")])
+        assert (s.measure, s.method_inside, s.method_outside) == ("err_est", "weno", "linear")
+        assert bpy.context.active_object.active_material.name == "ISOUQ_heatmap"
+        assert bpy.ops.isouq.apply_methods() == {"FINISHED"}
+        assert "d_lc" in dict(views.summary(bpy.context, bpy.context.active_object))
+    finally:
+        prefs.binary = ""
+
+
 # --- C6 ------------------------------------------------------------------------------------
 
 def test_side_by_side_copy_shows_the_other_method(sphere):
