@@ -19,26 +19,27 @@ if os.environ.get("FAKE_ISOUQ_LOG"):
         log.write(json.dumps(args) + "\n")
 if args == ["nodes", "--json"]:
     methods = [{"token": "linear", "label": "Linear", "column": "t_linear"},
-               {"token": "cubic", "label": "Cubic", "column": "t_cubic"},
-               {"token": "weno", "label": "WENO", "column": "t_weno"},
-               {"token": "weno-paper", "label": "WENO (paper)", "column": "t_weno_paper"}]
-    column = lambda name, kind, text, measure=False, summary=False, element="vertex": {
-        "name": name, "type": kind, "element": element, "description": text,
-        "measure": measure, "summary": summary}
+               {"token": "cubic", "label": "Cubic (4-point Lagrange)", "column": "t_cubic"},
+               {"token": "weno", "label": "WENO (6th order)", "column": "t_weno"},
+               {"token": "weno-paper", "label": "WENO (paper's constant weights)",
+                "column": "t_weno_paper"}]
+
+    def column(name, kind, text, measure=False, element="vertex"):
+        return {"name": name, "type": kind, "element": element, "description": text,
+                "measure": measure, "summary": measure}
+
     columns = [column(a, "float32", f"position {a}") for a in "xyz"]
     columns += [column(m["column"], "float32", f"{m['label']} crossing along the edge")
                 for m in methods]
     columns += [column(f"edge_{a}", "int32", f"edge voxel {a}") for a in "ijk"]
     columns += [column("edge_axis", "uint8", "edge axis"), column("order", "uint8", "order used")]
-    columns += [column(name, "float32", f"measure {name}", True, summary) for name, summary in (
-        ("err_est", True), ("err_bound", True), ("err_best", True), ("err_best_surface", False),
-        ("err_est_cubic", False), ("err_est_weno", False), ("d_lc", True), ("d_lw", True),
-        ("d_cw", True), ("max_var", True), ("err_true_linear", True), ("err_true_cubic", True),
-        ("err_true_weno", True), ("err_true_weno_paper", True), ("dist_true", True),
-        ("dist_true_linear", False), ("dist_true_cubic", False), ("dist_true_weno", False),
-        ("dist_true_weno_paper", False), ("dist_metro_linear", False))]
+    columns += [column(name, "float32", f"measure {name}", True) for name in (
+        "err_est", "err_bound", "err_best", "err_best_surface", "err_est_cubic", "err_est_weno",
+        "d_lc", "d_lw", "d_cw", "max_var", "err_true_linear", "err_true_cubic", "err_true_weno",
+        "err_true_weno_paper", "dist_true", "dist_true_linear", "dist_true_cubic",
+        "dist_true_weno", "dist_true_weno_paper", "dist_metro_linear")]
     columns += [column(name, "uint8", name) for name in ("hidden", "above", "in_box")]
-    columns += [column("compare_dist", "float32", "distance of two crossings", True, True),
+    columns += [column("compare_dist", "float32", "distance of two crossings", True),
                 column("vertex_indices", "list", "triangle corners", element="face"),
                 column("hidden", "uint8", "refined face", element="face")]
     mesh = {"type": "mesh", "parms": [{"token": "method", "default": "weno",
