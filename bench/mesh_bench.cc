@@ -8,6 +8,7 @@
 // resets the high-water mark (/proc/self/clear_refs "5"), makes one call and reports the rise of
 // VmHWM; the median over several children is given. Triangles per second count a quad of
 // volumeToMesh as two triangles.
+#include "isouq/GridMetadata.h"
 #include "isouq/HiddenFeatures.h"
 #include "isouq/MarchingCubes.h"
 #include "isouq/VolumeSources.h"
@@ -116,8 +117,7 @@ openvdb::FloatGrid::Ptr makeGrid(const std::string& name, const std::string& dat
                                                      (x * x + y * y + z * z) + 0.4));
                 }
         grid->setTransform(openvdb::math::Transform::createLinearTransform(h));
-        grid->insertMeta(isouq::kDataBoundsMinMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(0)));
-        grid->insertMeta(isouq::kDataBoundsMaxMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(n - 1)));
+        isouq::setDataBounds(*grid, openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(n - 1)));
         return grid;
     }
     if (name.rfind("sphere", 0) == 0) {

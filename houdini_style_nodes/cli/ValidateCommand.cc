@@ -1,12 +1,14 @@
 // isouq CLI: `isouq validate` — the paper's Figs. 3 and 4 as tables and plots (SPEC §3, §5;
 // docs/validation.md). The numbers come from isouq/Validation.h; this file only runs the
-// cases and writes them as JSON, CSV and Markdown, then calls scripts/plot_validation.py.
+// cases and writes them as JSON, CSV and Markdown, then calls plot_validation.py (Resources.h).
 #include "ValidateCommand.h"
 
+#include <isouq/Columns.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/MeshIO.h>
 #include <isouq/Validation.h>
 #include <isouq/VolumeSources.h>
+#include <isouq/nodes/Resources.h>
 
 #include <nlohmann/json.hpp>
 
@@ -26,18 +28,18 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 /// Per-vertex columns whose max / mean / RMS the tables list, in table order.
-const char* const kStatColumns[] = {"err_true_linear", "dist_true_linear", "dist_metro_linear",
-    "err_est", "err_bound", "err_best", "err_best_surface", "err_true_cubic", "dist_true_cubic",
-    "err_est_cubic", "err_true_weno", "dist_true_weno", "err_est_weno", "err_true_weno_paper",
-    "dist_true_weno_paper", "dist_true", "d_lc", "d_lw", "d_cw"};
+const std::string_view kStatColumns[] = {col::kErrTrueLinear, col::kDistTrueLinear, col::kDistMetroLinear,
+    col::kErrEst, col::kErrBound, col::kErrBest, col::kErrBestSurface, col::kErrTrueCubic, col::kDistTrueCubic,
+    col::kErrEstCubic, col::kErrTrueWeno, col::kDistTrueWeno, col::kErrEstWeno, col::kErrTrueWenoPaper,
+    col::kDistTrueWenoPaper, col::kDistTrue, col::kDLc, col::kDLw, col::kDCw};
 
 /// Estimate against measured error: the comparisons of the paper's Fig. 4 and issue 3.
-const std::pair<const char*, const char*> kComparisons[] = {
-    {"err_est", "err_true_linear"}, {"err_bound", "err_true_linear"},
-    {"err_est", "dist_true_linear"}, {"err_bound", "dist_true_linear"},
-    {"err_best", "err_true_linear"}, {"err_best_surface", "dist_true_linear"},
-    {"err_est_cubic", "err_true_cubic"}, {"err_est_weno", "err_true_weno"},
-    {"dist_metro_linear", "dist_true_linear"}};
+const std::pair<std::string_view, std::string_view> kComparisons[] = {
+    {col::kErrEst, col::kErrTrueLinear}, {col::kErrBound, col::kErrTrueLinear},
+    {col::kErrEst, col::kDistTrueLinear}, {col::kErrBound, col::kDistTrueLinear},
+    {col::kErrBest, col::kErrTrueLinear}, {col::kErrBestSurface, col::kDistTrueLinear},
+    {col::kErrEstCubic, col::kErrTrueCubic}, {col::kErrEstWeno, col::kErrTrueWeno},
+    {col::kDistMetroLinear, col::kDistTrueLinear}};
 
 struct Scan {
     const char* name;
@@ -71,8 +73,8 @@ double seconds(std::chrono::steady_clock::time_point since)
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
 }
 
-/// The source tree: the first ancestor of the executable or of the working directory that
-/// holds scripts/plot_validation.py ("" if none).
+/// The source tree, for the default data folder (../shared/data beside it): the first ancestor
+/// of the executable or of the working directory that holds scripts/plot_validation.py.
 fs::path sourceRoot()
 {
     std::error_code ec;
@@ -112,11 +114,11 @@ json runCases(const Options& o, std::ostringstream& md, std::ostringstream& stat
             {"vertices", r.mesh.positions.size()}, {"triangles", r.mesh.triangles.size()},
             {"multi_root_edges", r.truth.multiRootEdges}, {"no_root_edges", r.truth.noRootEdges},
             {"failed_projections", r.truth.failedProjections}};
-        for (const char* column : kStatColumns) {
+        for (const std::string_view column : kStatColumns) {
             const auto* values = r.mesh.vertexAttributes.find<float>(column);
             if (!values) continue;
             const ErrorStats s = errorStats(*values);
-            c["stats"][column] = statsJson(s);
+            c["stats"][std::string(column)] = statsJson(s);
             statsCsv << spec.field << ',' << spec.resolution << ',' << r.isovalue << ',' << column << ','
                      << sci(s.max, 6) << ',' << sci(s.mean, 6) << ',' << sci(s.rms, 6) << ',' << s.count << '\n';
             statsMd << "| " << spec.field << " | " << spec.resolution << " | `" << column << "` | "
@@ -127,7 +129,7 @@ json runCases(const Options& o, std::ostringstream& md, std::ostringstream& stat
             const auto* b = r.mesh.vertexAttributes.find<float>(measured);
             if (!a || !b) continue;
             const Agreement g = compareColumns(*a, *b);
-            c["agreement"].push_back({{"estimate", estimate}, {"measured", measured},
+            c["agreement"].push_back({{"estimate", std::string(estimate)}, {"measured", std::string(measured)},
                 {"rms_ratio", g.rmsRatio}, {"spearman", g.spearman}, {"count", g.count}});
             agreeCsv << spec.field << ',' << spec.resolution << ',' << estimate << ',' << measured << ','
                      << sci(g.rmsRatio, 6) << ',' << sci(g.spearman, 6) << ',' << g.count << '\n';
@@ -180,7 +182,7 @@ json runConvergence(const Options& o, std::ostringstream& md, std::ostringstream
                     spacings.push_back(row.spacing);
                 }
                 const double order = fittedOrder(errors, spacings);
-                fitted[sourceName][kValidationMethods[m]] = order;
+                fitted[sourceName][std::string(columnSuffix(kAllMethods[m]))] = order;
                 md << " | **" << sci(order) << "**";
             }
             md << " |\n";
@@ -198,9 +200,9 @@ json runConvergence(const Options& o, std::ostringstream& md, std::ostringstream
                         const auto& prev = source ? list[i - 1].exact : list[i - 1].mesher;
                         order = observedOrder(prev[m], list[i - 1].spacing, rms[m], row.spacing);
                     }
-                    jr[sourceName][kValidationMethods[m]] = {{"rms", rms[m]}, {"order", i > 0 ? json(order) : json(nullptr)}};
+                    jr[sourceName][std::string(columnSuffix(kAllMethods[m]))] = {{"rms", rms[m]}, {"order", i > 0 ? json(order) : json(nullptr)}};
                     csv << row.field << ',' << row.resolution << ',' << sci(row.spacing, 8) << ',' << row.edges << ','
-                        << sourceName << ',' << kValidationMethods[m] << ',' << sci(rms[m], 6) << ','
+                        << sourceName << ',' << std::string(columnSuffix(kAllMethods[m])) << ',' << sci(rms[m], 6) << ','
                         << (i > 0 ? sci(order, 4) : "") << '\n';
                     md << " | " << sci(rms[m]) << (i > 0 ? " (" + sci(order, 3) + ")" : "");
                 }
@@ -237,20 +239,20 @@ json runScans(const Options& o, std::ostringstream& md, std::ostringstream& csv)
         const Mesh mesh = extractIsosurface(*volume.grid, settings);
         json s = {{"scan", scan.name}, {"file", scan.file}, {"isovalue", scan.isovalue},
             {"isovalue_source", scan.isovalueNote}, {"vertices", mesh.positions.size()}};
-        for (const char* column : {"err_est", "err_bound", "d_lc", "d_lw", "d_cw"}) {
+        for (const std::string_view column : {col::kErrEst, col::kErrBound, col::kDLc, col::kDLw, col::kDCw}) {
             const ErrorStats st = errorStats(*mesh.vertexAttributes.find<float>(column));
-            s["stats"][column] = statsJson(st);
+            s["stats"][std::string(column)] = statsJson(st);
             csv << scan.name << ',' << scan.isovalue << ',' << column << ',' << sci(st.max, 6) << ','
                 << sci(st.mean, 6) << ',' << sci(st.rms, 6) << ',' << st.count << '\n';
         }
-        const Agreement g = compareColumns(*mesh.vertexAttributes.find<float>("d_lw"),
-            *mesh.vertexAttributes.find<float>("err_est"));
+        const Agreement g = compareColumns(*mesh.vertexAttributes.find<float>(col::kDLw),
+            *mesh.vertexAttributes.find<float>(col::kErrEst));
         s["rms_d_lw_over_e"] = g.rmsRatio;
         s["spearman_e_d_lw"] = g.spearman;
-        const auto rms = [&](const char* c) { return s["stats"][c]["rms"].get<double>(); };
+        const auto rms = [&](std::string_view c) { return s["stats"][std::string(c)]["rms"].get<double>(); };
         md << "| " << scan.name << " | " << scan.isovalue << " (" << scan.isovalueNote << ") | "
-           << mesh.positions.size() << " | " << sci(rms("err_est")) << " | " << sci(rms("d_lc")) << " | "
-           << sci(rms("d_lw")) << " | " << sci(rms("d_cw")) << " | " << sci(g.rmsRatio) << " | "
+           << mesh.positions.size() << " | " << sci(rms(col::kErrEst)) << " | " << sci(rms(col::kDLc)) << " | "
+           << sci(rms(col::kDLw)) << " | " << sci(rms(col::kDCw)) << " | " << sci(g.rmsRatio) << " | "
            << sci(g.spearman) << " |\n";
         scans.push_back(s);
     }
@@ -279,7 +281,7 @@ int runValidate(const Options& o)
     std::printf("wrote %s/{validation.json,tables.md,stats.csv,agreement.csv,convergence.csv,scans.csv}\n",
         o.outDir.c_str());
 
-    const std::string script = (sourceRoot() / "scripts" / "plot_validation.py").string();
+    const std::string script = nodes::resourcePath("plot_validation.py").string();
     const std::string command = "/usr/bin/python3 '" + script + "' '" + (out / "validation.json").string() + "'";
     if (!o.plots) {
         std::printf("plots: %s\n", command.c_str());

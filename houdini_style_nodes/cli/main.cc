@@ -8,7 +8,7 @@
 
 #include <isouq/MeshIO.h>
 #include <isouq/nodes/Graph.h>
-#include <isouq/nodes/MeshJob.h>
+#include <isouq/nodes/MeshGraph.h>
 
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
@@ -22,7 +22,7 @@
 
 namespace {
 
-using isouq::nodes::MeshJob;
+using isouq::nodes::MeshGraphRequest;
 
 constexpr int kExitBadInput = 2;
 constexpr int kExitInterrupted = 130;
@@ -42,6 +42,8 @@ Examples:
 Every vertex carries the edge it lies on (edge_i edge_j edge_k edge_axis) and where each method
 puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: a failed or
 interrupted run (Ctrl-C, exit 130) leaves no partial file and never clobbers an existing one.
+The command runs a node graph (docs/nodes.md): --save-graph G.json writes it, and
+'isouq run G.json' from the same folder writes the same files.
 )";
 
 const char* const kRunFooter = R"(
@@ -75,41 +77,30 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
     if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", summaryPath.c_str());
 }
 
-/// The mesh job from the node parameters given as flags (ParmOptions.h).
-MeshJob meshJobFrom(const nlohmann::json& read, const nlohmann::json& mesh, const nlohmann::json& out)
-{
-    MeshJob job;
-    auto& v = job.volume;
-    v.input = read.at("input");
-    if (read.contains("grid")) v.gridName = read["grid"];
-    if (read.contains("dims")) {
-        const auto d = read["dims"].get<std::array<int, 3>>();
-        v.dims = openvdb::Vec3i(d[0], d[1], d[2]);
-    }
-    if (read.contains("dtype")) v.dtype = read["dtype"];
-    if (read.contains("spacing")) {
-        const auto s = read["spacing"].get<std::array<double, 3>>();
-        v.spacing = openvdb::Vec3d(s[0], s[1], s[2]);
-    }
-    if (read.contains("resolution")) v.resolution = read["resolution"].get<int>();
-    if (read.contains("domain")) {
-        const auto d = read["domain"].get<std::array<double, 2>>();
-        v.domain = std::make_pair(d[0], d[1]);
-    }
-    if (read.contains("isovalue")) v.isovalue = read["isovalue"].get<float>();
-    job.method = *isouq::edgeMethodFromString(mesh.value("method", std::string("weno")));
-    job.uncertainty = !mesh.value("linear_only", false);
-    job.output = out.at("path");
-    return job;
-}
-
-int runJob(const MeshJob& job, bool quiet)
+/// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings.
+isouq::nodes::GraphResult runWithProgress(const isouq::nodes::Graph& graph, bool quiet)
 {
     isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
-    isouq::nodes::JobNotes notes;
-    const nlohmann::json summary = isouq::nodes::runMeshJob(job, &progress, &notes);
-    printNotes(notes, quiet);
-    printResult(summary, job.summaryPath);
+    isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress);
+    printNotes(result.warnings, quiet);
+    return result;
+}
+
+/// `isouq mesh` and `isouq demo`: the mesh graph (MeshGraph.h), run like any other graph.
+int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool quiet)
+{
+    const nlohmann::json doc = isouq::nodes::meshGraph(request);
+    const isouq::nodes::Graph graph = isouq::nodes::parseGraph(doc);
+    if (!saveGraph.empty()) {
+        for (const std::string& out : {request.output, request.hiddenOutput, request.summaryPath})
+            if (!out.empty() && std::filesystem::weakly_canonical(out) == std::filesystem::weakly_canonical(saveGraph))
+                throw isouq::InputError("--save-graph " + saveGraph + " is also an output; give it its own path");
+        isouq::checkWritable(saveGraph);
+    }
+    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet);
+    if (!saveGraph.empty()) isouq::writeTextFileAtomic(saveGraph, doc.dump(2) + "\n");
+    printResult(result.outputs.at(isouq::nodes::kMeshGraphSummary).at("summary"), request.summaryPath);
+    if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", saveGraph.c_str(), saveGraph.c_str());
     return 0;
 }
 
@@ -119,9 +110,7 @@ int runGraphFile(const std::string& path, const std::string& outDir, bool quiet)
     options.outputDir = outDir;
     const isouq::nodes::Graph graph = isouq::nodes::loadGraph(path, options);
     if (!outDir.empty()) std::filesystem::create_directories(outDir);
-    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
-    const isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress);
-    printNotes(result.warnings, quiet);
+    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet);
     for (const std::string& file : result.written) std::printf("wrote %s\n", file.c_str());
     return 0;
 }
@@ -154,23 +143,23 @@ int main(int argc, char** argv)
 
     bool quiet = false;
     int threads = 0;
-    nlohmann::json readParms = nlohmann::json::object(), meshParms = readParms, plyParms = readParms,
-                   summaryParms = readParms;
+    MeshGraphRequest meshRequest;
+    nlohmann::json plyParms = nlohmann::json::object(), summaryParms = plyParms;
+    std::string saveGraph;
     CLI::App* mesh = app.add_subcommand("mesh", "Extract an isosurface and write it as PLY with per-vertex attributes");
-    addParmOptions(*mesh, nodeType("read_volume"), readParms);
+    addParmOptions(*mesh, nodeType("read_volume"), meshRequest.read);
     mesh->get_option("INPUT")->required()->default_str("");
     addParmOptions(*mesh, nodeType("write_ply"), plyParms);
     mesh->get_option("--output")->required()->default_str("");
-    addParmOptions(*mesh, nodeType("mesh"), meshParms);
+    addParmOptions(*mesh, nodeType("mesh"), meshRequest.mesh);
     addParmOptions(*mesh, nodeType("write_summary"), summaryParms);
     mesh->get_option("--summary")->default_str("");
-    bool hiddenFeatures = false;
-    std::string hiddenOut;
-    nlohmann::json hiddenParms = nlohmann::json::object();
-    mesh->add_flag("--hidden-features", hiddenFeatures,
+    mesh->add_flag("--hidden-features", meshRequest.hiddenFeatures,
         "Also recover hidden features (paper sec. 4.2): the summary's 'hidden' block");
-    addParmOptions(*mesh, nodeType("hidden_features"), hiddenParms);
-    mesh->add_option("--hidden-out", hiddenOut, "With --hidden-features: write that mesh too (.ply)");
+    addParmOptions(*mesh, nodeType("hidden_features"), meshRequest.hidden);
+    mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply)");
+    mesh->add_option("--save-graph", saveGraph,
+        "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
     mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     mesh->footer(kMeshExamples);
@@ -221,23 +210,17 @@ int main(int argc, char** argv)
 
     try {
         if (*mesh) {
-            MeshJob job = meshJobFrom(readParms, meshParms, plyParms);
-            job.summaryPath = summaryParms.value("path", std::string());
-            job.threads = threads;
-            job.hiddenFeatures = hiddenFeatures || !hiddenOut.empty();
-            job.subdivisions = hiddenParms.value("subdivisions", 4);
-            job.hiddenFilter = hiddenParms.value("filter", true);
-            job.hiddenOutput = hiddenOut;
-            return runJob(job, quiet);
+            meshRequest.output = plyParms.at("path");
+            meshRequest.summaryPath = summaryParms.value("path", std::string());
+            return runMesh(meshRequest, saveGraph, quiet);
         }
         if (*demo) {
             std::filesystem::create_directories(demoDir);
-            MeshJob job;
-            job.volume.input = "field:teardrop";
-            job.volume.resolution = 64;
-            job.output = (std::filesystem::path(demoDir) / "teardrop.ply").string();
-            job.summaryPath = (std::filesystem::path(demoDir) / "teardrop.summary.json").string();
-            return runJob(job, quiet);
+            MeshGraphRequest demoRequest;
+            demoRequest.read = {{"input", "field:teardrop"}, {"resolution", 64}};
+            demoRequest.output = (std::filesystem::path(demoDir) / "teardrop.ply").string();
+            demoRequest.summaryPath = (std::filesystem::path(demoDir) / "teardrop.summary.json").string();
+            return runMesh(demoRequest, "", quiet);
         }
         if (*nodesCmd) return listNodes(asJson, asMarkdown);
         if (*run) return runGraphFile(graphPath, outDir, quiet);

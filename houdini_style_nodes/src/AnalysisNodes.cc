@@ -2,10 +2,12 @@
 // select (C2), method blend (C3), compare (C5/C6 data) and summary (C7). Mesh in, mesh out:
 // each adds named per-vertex columns and an info block; none reads the volume.
 #include "NodeFamilies.h"
+#include <isouq/Columns.h>
 
 #include "isouq/nodes/Summary.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <functional>
 #include <stdexcept>
@@ -16,16 +18,16 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-const std::vector<float>& floatColumn(const MeshData& m, const std::string& name, const std::string& hint)
+const std::vector<float>& floatColumn(const MeshData& m, std::string_view name, const std::string& hint)
 {
     const auto* c = m.mesh.vertexAttributes.find<float>(name);
-    if (!c) throw std::invalid_argument("input 'mesh' has no per-vertex '" + name + "'" + hint);
+    if (!c) throw std::invalid_argument("input 'mesh' has no per-vertex '" + std::string(name) + "'" + hint);
     return *c;
 }
 
 const std::vector<std::uint8_t>* hiddenColumn(const MeshData& m)
 {
-    return m.mesh.vertexAttributes.find<std::uint8_t>("hidden");
+    return m.mesh.vertexAttributes.find<std::uint8_t>(col::kHidden);
 }
 
 /// numpy.percentile's default ("linear"): sorted a, position p/100 (n-1), linear between ranks.
@@ -46,7 +48,7 @@ void cookThreshold(CookContext& ctx)
     const std::string measure = p.getString("measure");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
     // Add the column before taking references: adding may move the others.
-    std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>("above", out->mesh.vertexCount());
+    std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>(col::kAbove, out->mesh.vertexCount());
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
 
     std::vector<double> sorted;
@@ -88,7 +90,7 @@ void cookBoxSelect(CookContext& ctx)
     const auto s = ctx.parms.getVec3("size");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
     const std::vector<openvdb::Vec3s>& pos = out->mesh.positions;
-    std::vector<std::uint8_t>& in = out->mesh.vertexAttributes.add<std::uint8_t>("in_box", pos.size());
+    std::vector<std::uint8_t>& in = out->mesh.vertexAttributes.add<std::uint8_t>(col::kInBox, pos.size());
     std::size_t count = 0;
     for (std::size_t v = 0; v < pos.size(); ++v) {
         bool inside = true;
@@ -99,9 +101,10 @@ void cookBoxSelect(CookContext& ctx)
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
+/// t_<method> of a method menu token (the menus only hold valid tokens).
 std::string tColumnName(const std::string& method)
 {
-    return method == "weno-paper" ? "t_weno_paper" : "t_" + method;
+    return std::string(tColumn(*edgeMethodFromString(method)));
 }
 
 /// World position of parameter t along a vertex's source edge: M (ijk + t e_axis, 1).
@@ -113,10 +116,10 @@ struct EdgePlacer {
     static EdgePlacer of(const MeshData& m)
     {
         const AttributeTable& a = m.mesh.vertexAttributes;
-        const auto* i = a.find<std::int32_t>("edge_i");
-        const auto* j = a.find<std::int32_t>("edge_j");
-        const auto* k = a.find<std::int32_t>("edge_k");
-        const auto* ax = a.find<std::uint8_t>("edge_axis");
+        const auto* i = a.find<std::int32_t>(col::kEdgeI);
+        const auto* j = a.find<std::int32_t>(col::kEdgeJ);
+        const auto* k = a.find<std::int32_t>(col::kEdgeK);
+        const auto* ax = a.find<std::uint8_t>(col::kEdgeAxis);
         if (!i || !j || !k || !ax) throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis");
         return {m.mesh, *i, *j, *k, *ax};
     }
@@ -142,7 +145,7 @@ void cookMethodBlend(CookContext& ctx)
     const auto* selected = out->mesh.vertexAttributes.find<std::uint8_t>(selection);
     if (!selected)
         throw std::invalid_argument("parameter 'selection': input 'mesh' has no per-vertex '" + selection +
-            "' (connect a " + (selection == "above" ? "threshold" : "box_select") + " node before)");
+            "' (connect a " + (selection == col::kAbove ? "threshold" : "box_select") + " node before)");
     const std::string hint = " (mesh without linear_only)";
     const std::vector<float>& tIn = floatColumn(*out, tColumnName(inside), hint);
     const std::vector<float>& tOut = floatColumn(*out, tColumnName(outside), hint);
@@ -219,27 +222,34 @@ void cookCompare(CookContext& ctx)
             if (!(hidden && (*hidden)[v])) dist[v] = float((place(v, ta[v]) - place(v, tb[v])).length());
         block = {{"mode", "methods"}, {"method_a", a}, {"method_b", bName}};
     }
-    block["compare_dist"] = statistics(dist);
-    out->mesh.vertexAttributes.add<float>("compare_dist", n) = std::move(dist);
+    block[std::string(col::kCompareDist)] = statistics(dist);
+    out->mesh.vertexAttributes.add<float>(col::kCompareDist, n) = std::move(dist);
     out->info["compare"] = block;
     ctx.outputs["stats"].json = block;
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
 /// C7: the SPEC §8 summary with the views' blocks (threshold, box, blend, compare, hidden).
+/// Where the meshes go (the first mesh writer of each input) and the upstream cook times.
 void cookSummary(CookContext& ctx)
 {
+    const auto start = std::chrono::steady_clock::now();
     const MeshData& m = inputMesh(ctx);
     nlohmann::json s = summarizeMesh(m.mesh);
     s["isovalue"] = m.isovalue;
     s["method"] = m.method;
     for (const auto& [key, value] : m.info.items()) s[key] = value;
+    if (const auto paths = ctx.destinations("mesh"); !paths.empty()) s["output"] = paths.front();
     // C7's "components before and after hidden-feature recovery" beside the views' blocks.
     if (const NodeValue* hidden = ctx.input("hidden")) {
         if (!hidden->mesh || !hidden->mesh->info.contains("hidden"))
             throw std::invalid_argument("input 'hidden' is not the output of a hidden_features node");
         s["hidden"] = hidden->mesh->info["hidden"];
+        if (const auto paths = ctx.destinations("hidden"); !paths.empty()) s["hidden"]["output"] = paths.front();
     }
+    nlohmann::json timings = ctx.upstreamTimings();
+    timings["measure"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    s["timings_ms"] = timings;
     ctx.outputs["summary"].json = s;
 }
 
@@ -247,83 +257,66 @@ void cookSummary(CookContext& ctx)
 
 void addAnalysisNodes(std::vector<NodeType>& types)
 {
-    NodeType thr;
-    thr.type = "threshold";
-    thr.label = "Threshold";
-    thr.description = "C1 (paper sec. 4.3, SPEC §7): marks the vertices whose measure is above a value or "
-                      "a percentile (numpy's linear percentile of the finite values) as `above`, and gives "
-                      "the CDF.";
-    thr.parms = {
-        menuParm("measure", "Measure", measureNames(), "err_est", "Per-vertex measure to threshold"),
-        menuParm("mode", "Mode", {"value", "percentile"}, "percentile", "Threshold by value or by percentile"),
-        ranged(parm("value", "Value", ParmType::Float, 0.0, "mode=value: the threshold, world units"),
-            std::make_pair(0.0, 0.1), std::nullopt),
-        ranged(parm("percentile", "Percentile", ParmType::Float, 90.0,
-                   "mode=percentile: the threshold is this percentile of the measure"),
-            std::make_pair(50.0, 100.0), std::make_pair(0.0, 100.0)),
-    };
-    thr.inputs = {{"mesh", "mesh", "A mesh with the measure"}};
-    thr.outputs = {{"mesh", "mesh", "The mesh with `above` (uint8)"},
-        {"cdf", "json", "measure, threshold, above count and the CDF sampled at up to 1001 ranks"}};
-    thr.cook = cookThreshold;
-    types.push_back(std::move(thr));
+    types.push_back({"threshold", "Threshold",
+        "C1 (paper sec. 4.3, SPEC §7): marks the vertices whose measure is above a value or a percentile "
+        "(numpy's linear percentile of the finite values) as `above`, and gives the CDF.",
+        {
+            menuParm("measure", "Measure", measureColumns(), measureColumns().front(), "Per-vertex measure to threshold"),
+            menuParm("mode", "Mode", {"value", "percentile"}, "percentile", "Threshold by value or by percentile"),
+            ranged(parm("value", "Value", ParmType::Float, 0.0, "mode=value: the threshold, world units"),
+                std::make_pair(0.0, 0.1), std::nullopt),
+            ranged(parm("percentile", "Percentile", ParmType::Float, 90.0,
+                       "mode=percentile: the threshold is this percentile of the measure"),
+                std::make_pair(50.0, 100.0), std::make_pair(0.0, 100.0)),
+        },
+        {{"mesh", "mesh", "A mesh with the measure"}},
+        {{"mesh", "mesh", "The mesh with `above` (uint8)"},
+            {"cdf", "json", "measure, threshold, above count and the CDF sampled at up to 1001 ranks"}},
+        cookThreshold});
 
-    NodeType box;
-    box.type = "box_select";
-    box.label = "Box Select";
-    box.description = "C2 (SPEC §7): marks the vertices inside an axis-aligned box (closed) as `in_box`.";
-    box.parms = {
-        parm("center", "Center", ParmType::Vec3, nlohmann::json::array({0.0, 0.0, 0.0}), "Box centre, world units"),
-        ranged(parm("size", "Size", ParmType::Vec3, nlohmann::json::array({0.5, 0.5, 0.5}), "Box edge lengths, world units"),
-            std::nullopt, std::make_pair(0.0, kInf)),
-    };
-    box.inputs = {{"mesh", "mesh", "Any mesh"}};
-    box.outputs = {{"mesh", "mesh", "The mesh with `in_box` (uint8)"}};
-    box.cook = cookBoxSelect;
-    types.push_back(std::move(box));
+    types.push_back({"box_select", "Box Select",
+        "C2 (SPEC §7): marks the vertices inside an axis-aligned box (closed) as `in_box`.",
+        {
+            parm("center", "Center", ParmType::Vec3, nlohmann::json::array({0.0, 0.0, 0.0}), "Box centre, world units"),
+            ranged(parm("size", "Size", ParmType::Vec3, nlohmann::json::array({0.5, 0.5, 0.5}),
+                       "Box edge lengths, world units"),
+                std::nullopt, std::make_pair(0.0, kInf)),
+        },
+        {{"mesh", "mesh", "Any mesh"}}, {{"mesh", "mesh", "The mesh with `in_box` (uint8)"}}, cookBoxSelect});
 
-    NodeType blend;
-    blend.type = "method_blend";
-    blend.label = "Method Blend";
-    blend.description = "C3 (SPEC §7): places the selected vertices at one method's crossing and the others "
-                        "at another's, from the per-vertex edge and t columns (SPEC §6).";
-    blend.parms = {
-        menuParm("selection", "Selection", {"in_box", "above"}, "in_box", "The uint8 column that selects"),
-        menuParm("inside", "Inside Method", methodMenu(), "weno", "Method for the selected vertices"),
-        menuParm("outside", "Outside Method", methodMenu(), "linear", "Method for the other vertices"),
-    };
-    blend.inputs = {{"mesh", "mesh", "A mesh with the selection column and t_<method> columns"}};
-    blend.outputs = {{"mesh", "mesh", "The mesh with blended positions"}};
-    blend.cook = cookMethodBlend;
-    types.push_back(std::move(blend));
+    types.push_back({"method_blend", "Method Blend",
+        "C3 (SPEC §7): places the selected vertices at one method's crossing and the others at another's, "
+        "from the per-vertex edge and t columns (SPEC §6).",
+        {
+            menuParm("selection", "Selection", {std::string(col::kInBox), std::string(col::kAbove)},
+                std::string(col::kInBox), "The uint8 column that selects"),
+            menuParm("inside", "Inside Method", methodMenu(), "weno", "Method for the selected vertices"),
+            menuParm("outside", "Outside Method", methodMenu(), "linear", "Method for the other vertices"),
+        },
+        {{"mesh", "mesh", "A mesh with the selection column and t_<method> columns"}},
+        {{"mesh", "mesh", "The mesh with blended positions"}}, cookMethodBlend});
 
-    NodeType cmp;
-    cmp.type = "compare";
-    cmp.label = "Compare";
-    cmp.description = "C5/C6 data (SPEC §7): per-vertex `compare_dist`, the distance between two methods' "
-                      "crossings, or to the vertex on the same source edge of a second mesh.";
-    cmp.parms = {
-        menuParm("method_a", "Method A", methodMenu(), "linear", "Without 'other': the first method"),
-        menuParm("method_b", "Method B", methodMenu(), "weno", "Without 'other': the second method"),
-    };
-    cmp.inputs = {{"mesh", "mesh", "The mesh that receives compare_dist"},
-        {"other", "mesh", "A second mesh of the same volume (e.g. another isovalue or method)", true}};
-    cmp.outputs = {{"mesh", "mesh", "The mesh with `compare_dist` (float)"},
-        {"stats", "json", "Mode and {min, max, mean, rms, count} of compare_dist"}};
-    cmp.cook = cookCompare;
-    types.push_back(std::move(cmp));
+    types.push_back({"compare", "Compare",
+        "C5/C6 data (SPEC §7): per-vertex `compare_dist`, the distance between two methods' crossings, or to "
+        "the vertex on the same source edge of a second mesh.",
+        {
+            menuParm("method_a", "Method A", methodMenu(), "linear", "Without 'other': the first method"),
+            menuParm("method_b", "Method B", methodMenu(), "weno", "Without 'other': the second method"),
+        },
+        {{"mesh", "mesh", "The mesh that receives compare_dist"},
+            {"other", "mesh", "A second mesh of the same volume (e.g. another isovalue or method)", true}},
+        {{"mesh", "mesh", "The mesh with `compare_dist` (float)"},
+            {"stats", "json", "Mode and {min, max, mean, rms, count} of compare_dist"}},
+        cookCompare});
 
-    NodeType sum;
-    sum.type = "summary";
-    sum.label = "Summary";
-    sum.description = "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the "
-                      "blocks of the views upstream (threshold with its count above, box, blend, compare, "
-                      "hidden with components before and after recovery).";
-    sum.inputs = {{"mesh", "mesh", "The mesh to summarise"},
-        {"hidden", "mesh", "Optional: the hidden-feature mesh, for components before and after recovery", true}};
-    sum.outputs = {{"summary", "json", "The summary"}};
-    sum.cook = cookSummary;
-    types.push_back(std::move(sum));
+    types.push_back({"summary", "Summary",
+        "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the blocks of the "
+        "views upstream (threshold with its count above, box, blend, compare, hidden with components before "
+        "and after recovery), where the meshes are written and the upstream nodes' cook times.",
+        {},
+        {{"mesh", "mesh", "The mesh to summarise"},
+            {"hidden", "mesh", "Optional: the hidden-feature mesh, for components before and after recovery", true}},
+        {{"summary", "json", "The summary"}}, cookSummary});
 }
 
 } // namespace isouq::nodes::nodes_internal

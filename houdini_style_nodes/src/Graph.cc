@@ -4,6 +4,8 @@
 #include <isouq/MeshIO.h>
 #include <isouq/Progress.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -196,7 +198,8 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
     for (const GraphNode& n : graph.nodes)
         for (const ParmSpec& spec : n.type->parms)
             if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) {
-                const std::string path = fs::absolute(n.parms.getString(spec.token)).lexically_normal().string();
+                // Resolved (symlinks, "..", "./"), so two spellings of one file are one file.
+                const std::string path = fs::weakly_canonical(fs::absolute(n.parms.getString(spec.token))).string();
                 auto [it, fresh] = writers.emplace(path, n.id);
                 if (!fresh)
                     fail(n.id, n.type, "parameter '" + spec.token + "': " + n.parms.getString(spec.token) +
@@ -222,6 +225,46 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
     }
 }
 
+namespace {
+
+/// Cook times of every node upstream of @a n, by id, in running order (a walk of its inputs).
+nlohmann::json upstreamTimings(const Graph& graph, const std::vector<double>& cookMs, std::size_t n)
+{
+    std::vector<bool> seen(graph.nodes.size(), false);
+    std::vector<std::size_t> stack{n};
+    while (!stack.empty()) {
+        const std::size_t m = stack.back();
+        stack.pop_back();
+        for (const auto& [port, src] : graph.nodes[m].inputs)
+            if (!seen[src.first]) seen[src.first] = true, stack.push_back(src.first);
+    }
+    nlohmann::json timings = nlohmann::json::object();
+    for (std::size_t m = 0; m < n; ++m)
+        if (seen[m]) timings[graph.nodes[m].id] = cookMs[m];
+    return timings;
+}
+
+/// The paths that mesh writers give to the value node @a n reads on @a port.
+std::vector<std::string> destinations(const Graph& graph, std::size_t n, const std::string& port)
+{
+    std::vector<std::string> paths;
+    const auto it = graph.nodes[n].inputs.find(port);
+    if (it == graph.nodes[n].inputs.end()) return paths;
+    for (const GraphNode& reader : graph.nodes) {
+        if (!reader.type->meshWriter) continue;
+        for (const auto& [readerPort, src] : reader.inputs)
+            if (src == it->second)
+                for (const ParmSpec& spec : reader.type->parms)
+                    if (spec.type == ParmType::Path) {
+                        paths.push_back(reader.parms.getString(spec.token));
+                        break;
+                    }
+    }
+    return paths;
+}
+
+} // namespace
+
 GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter)
 {
     // Fail on unwritable outputs before any heavy work.
@@ -233,11 +276,22 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
                     throw IoError(where(n.id, n.type) + ": parameter '" + spec.token + "': " + e.what());
                 }
 
+    // A node's outputs are freed once its last reader has cooked (the volume after meshing).
+    const std::size_t count = graph.nodes.size();
+    std::vector<std::size_t> lastReader(count);
+    for (std::size_t n = 0; n < count; ++n) {
+        lastReader[n] = n;
+        for (const auto& [port, src] : graph.nodes[n].inputs) lastReader[src.first] = std::max(lastReader[src.first], n);
+    }
+    std::vector<std::vector<std::size_t>> freeAfter(count);
+    for (std::size_t n = 0; n < count; ++n) freeAfter[lastReader[n]].push_back(n);
+
     GraphResult result;
     std::vector<PendingWrite> writes;
-    std::vector<std::map<std::string, NodeValue>> values(graph.nodes.size());
+    std::vector<std::map<std::string, NodeValue>> values(count);
+    std::vector<double> cookMs(count, 0.0);
 
-    for (std::size_t n = 0; n < graph.nodes.size(); ++n) {
+    for (std::size_t n = 0; n < count; ++n) {
         const GraphNode& node = graph.nodes[n];
         CookContext ctx;
         ctx.nodeId = node.id;
@@ -245,9 +299,12 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         ctx.interrupter = interrupter;
         ctx.warnings = &result.warnings;
         ctx.writes = &writes;
+        ctx.upstreamTimings = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
+        ctx.destinations = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
         for (const auto& [port, src] : node.inputs)
             ctx.inputs[port] = &values[src.first].at(src.second);
         throwIfInterrupted(interrupter);
+        const auto start = std::chrono::steady_clock::now();
         try {
             node.type->cook(ctx);
         } catch (const InterruptedError&) {
@@ -256,17 +313,12 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
             if (openvdb::util::wasInterrupted(interrupter)) throw InterruptedError();
             throw InputError(where(node.id, node.type) + ": " + e.what());
         }
+        cookMs[n] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         for (const PortSpec& out : node.type->outputs)
             if (out.type == "json" && ctx.outputs.count(out.name))
                 result.outputs[node.id][out.name] = ctx.outputs[out.name].json;
         values[n] = std::move(ctx.outputs);
-        // Free what no later node reads (the volume after meshing, say).
-        for (std::size_t m = 0; m < n; ++m) {
-            bool needed = false;
-            for (std::size_t later = n + 1; later < graph.nodes.size() && !needed; ++later)
-                for (const auto& [port, src] : graph.nodes[later].inputs) needed = needed || src.first == m;
-            if (!needed) values[m].clear();
-        }
+        for (std::size_t m : freeAfter[n]) values[m].clear();
     }
     throwIfInterrupted(interrupter);
     OutputBatch batch;

@@ -1,7 +1,7 @@
 // isouq nodes: the registry of node types and its two renderings, JSON and Markdown.
 #include "NodeFamilies.h"
 
-#include <isouq/EdgeInterp.h>
+#include <isouq/Columns.h>
 
 #include <cmath>
 #include <sstream>
@@ -12,8 +12,9 @@ namespace nodes_internal {
 
 std::vector<std::string> methodMenu()
 {
-    return {toString(EdgeMethod::Linear), toString(EdgeMethod::Cubic), toString(EdgeMethod::Weno),
-        toString(EdgeMethod::WenoPaper)};
+    std::vector<std::string> menu;
+    for (EdgeMethod m : kAllMethods) menu.push_back(toString(m));
+    return menu;
 }
 
 const MeshData& inputMesh(const CookContext& ctx, const std::string& port)
@@ -84,14 +85,6 @@ const NodeType* findNodeType(const std::string& type)
     return nullptr;
 }
 
-const std::vector<std::string>& measureNames()
-{
-    static const std::vector<std::string> names = {"err_est", "err_bound", "err_best", "err_best_surface",
-        "max_var", "d_lc", "d_lw", "d_cw", "err_est_cubic", "err_est_weno", "err_true_linear", "err_true_cubic",
-        "err_true_weno", "dist_true", "compare_dist"};
-    return names;
-}
-
 nlohmann::json nodeTypesJson()
 {
     nlohmann::json nodes = nlohmann::json::array();
@@ -105,7 +98,15 @@ nlohmann::json nodeTypesJson()
         nodes.push_back({{"type", t.type}, {"label", t.label}, {"description", t.description},
             {"inputs", portsJson(t.inputs)}, {"outputs", portsJson(t.outputs)}, {"parms", parms}});
     }
-    return {{"format", "isouq-nodes"}, {"format_version", 1}, {"nodes", nodes}};
+    nlohmann::json columns = nlohmann::json::array();
+    for (const ColumnInfo& c : columnTable())
+        columns.push_back({{"name", c.name}, {"type", toString(c.type)}, {"element", toString(c.element)},
+            {"description", c.description}, {"measure", c.measure}, {"summary", c.summary}});
+    nlohmann::json methods = nlohmann::json::array();
+    for (EdgeMethod m : kAllMethods)
+        methods.push_back({{"token", toString(m)}, {"label", toMenuName(m)}, {"column", tColumn(m)}});
+    return {{"format", "isouq-nodes"}, {"format_version", 1}, {"nodes", nodes}, {"columns", columns},
+        {"methods", methods}};
 }
 
 std::string nodeTypesMarkdown()

@@ -2,6 +2,8 @@
 // queues a PendingWrite; the graph commits them after every node has cooked (Node.h).
 #include "NodeFamilies.h"
 
+#include "isouq/nodes/Resources.h"
+
 #include <isouq/MeshIO.h>
 
 #include <cstdlib>
@@ -49,7 +51,7 @@ std::string quoted(const std::string& s)
     return q + "'";
 }
 
-/// Runs scripts/report.py (matplotlib) on the mesh and summary, staged in a temporary folder.
+/// Runs report.py (scripts/ in the source, share/isouq/ installed; matplotlib) on the mesh and summary, staged in a temporary folder.
 void writeReport(const MeshData& m, const nlohmann::json& summary, const std::string& dir, bool html)
 {
     const fs::path stage = fs::path(dir).parent_path() / (fs::path(dir).filename().string() + ".isouq-stage");
@@ -61,7 +63,7 @@ void writeReport(const MeshData& m, const nlohmann::json& summary, const std::st
     writePly(m.mesh, (stage / "mesh.ply").string(), plyOptionsOf(m));
     writeTextFileAtomic((stage / "summary.json").string(), summary.dump(2) + "\n");
     const std::string command = quoted(envOr("ISOUQ_PYTHON", "/usr/bin/python3")) + " " +
-        quoted(envOr("ISOUQ_REPORT_SCRIPT", ISOUQ_REPORT_SCRIPT)) + " --mesh " + quoted((stage / "mesh.ply").string()) +
+        quoted(envOr("ISOUQ_REPORT_SCRIPT", resourcePath("report.py").string())) + " --mesh " + quoted((stage / "mesh.ply").string()) +
         " --summary " + quoted((stage / "summary.json").string()) + " --out " + quoted(dir) + (html ? " --html" : "");
     const int status = std::system(command.c_str());
     if (status != 0)
@@ -84,39 +86,28 @@ void cookReport(CookContext& ctx)
 
 void addOutputNodes(std::vector<NodeType>& types)
 {
-    NodeType ply;
-    ply.type = "write_ply";
-    ply.label = "Write PLY";
-    ply.description = "Writes the mesh as binary little-endian PLY with every attribute (SPEC §6; "
-                      "docs/ply-format.md), atomically.";
-    ply.parms = {parm("path", "Path", ParmType::Path, "out.ply", "Output mesh (.ply, binary little-endian)", "-o,--output")};
-    ply.inputs = {{"mesh", "mesh", "The mesh to write"}};
-    ply.cook = cookWritePly;
-    types.push_back(std::move(ply));
+    types.push_back({"write_ply", "Write PLY",
+        "Writes the mesh as binary little-endian PLY with every attribute (SPEC §6; docs/ply-format.md), "
+        "atomically.",
+        {parm("path", "Path", ParmType::Path, "out.ply", "Output mesh (.ply, binary little-endian)", "-o,--output")},
+        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWritePly, /*meshWriter=*/true});
 
-    NodeType sum;
-    sum.type = "write_summary";
-    sum.label = "Write Summary";
-    sum.description = "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.";
-    sum.parms = {parm("path", "Path", ParmType::Path, "summary.json", "Output JSON file (with isouq mesh: the SPEC §8 summary)", "--summary")};
-    sum.inputs = {{"summary", "json", "The JSON to write"}};
-    sum.cook = cookWriteSummary;
-    types.push_back(std::move(sum));
+    types.push_back({"write_summary", "Write Summary",
+        "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.",
+        {parm("path", "Path", ParmType::Path, "summary.json", "Output JSON file (with isouq mesh: the SPEC §8 summary)",
+            "--summary")},
+        {{"summary", "json", "The JSON to write"}}, {}, cookWriteSummary});
 
-    NodeType report;
-    report.type = "report";
-    report.label = "Report";
-    report.description = "Draws the C1 CDF with its threshold, the C5 vertex-by-vertex bars of err_est, d_lc "
-                         "and d_lw in the box, and the C7 summary as PNG (and an HTML page) with matplotlib "
-                         "(scripts/report.py; paper sec. 4.3).";
-    report.parms = {
-        parm("dir", "Folder", ParmType::Path, "report", "Output folder for the PNG files", "-o,--output"),
-        parm("html", "HTML Page", ParmType::Bool, false, "Also write index.html showing the pictures", "--html"),
-    };
-    report.inputs = {{"mesh", "mesh", "A mesh, with `above` (threshold) and `in_box` (box_select) for C1 and C5"},
-        {"summary", "json", "The C7 summary", true}};
-    report.cook = cookReport;
-    types.push_back(std::move(report));
+    types.push_back({"report", "Report",
+        "Draws the C1 CDF with its threshold, the C5 vertex-by-vertex bars of err_est, d_lc and d_lw in the box, "
+        "and the C7 summary as PNG (and an HTML page) with matplotlib (report.py; paper sec. 4.3).",
+        {
+            parm("dir", "Folder", ParmType::Path, "report", "Output folder for the PNG files", "-o,--output"),
+            parm("html", "HTML Page", ParmType::Bool, false, "Also write index.html showing the pictures", "--html"),
+        },
+        {{"mesh", "mesh", "A mesh, with `above` (threshold) and `in_box` (box_select) for C1 and C5"},
+            {"summary", "json", "The C7 summary", true}},
+        {}, cookReport});
 }
 
 } // namespace isouq::nodes::nodes_internal

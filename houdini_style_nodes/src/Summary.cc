@@ -1,6 +1,7 @@
 // isouq nodes: the SPEC §8 summary of a mesh.
 #include "isouq/nodes/Summary.h"
 
+#include <isouq/Columns.h>
 #include <isouq/MeshTopology.h>
 
 #include <algorithm>
@@ -8,14 +9,6 @@
 #include <limits>
 
 namespace isouq::nodes {
-namespace {
-
-/// Per-vertex measures whose statistics the summary reports (SPEC §6, §8).
-const char* const kSummaryMeasures[] = {"err_est", "err_bound", "err_best", "d_lc", "d_lw", "d_cw",
-    "max_var", "err_true_linear", "err_true_cubic", "err_true_weno", "err_true_weno_paper",
-    "dist_true", "compare_dist"};
-
-} // namespace
 
 nlohmann::json statistics(const std::vector<float>& values)
 {
@@ -46,8 +39,9 @@ nlohmann::json summarizeMesh(const Mesh& mesh)
     s["degenerate_triangles"] = topo.degenerateTriangles;
     s["area"] = topo.area;
     s["enclosed_volume"] = topo.enclosedVolume;
-    for (const char* name : kSummaryMeasures)
-        if (const auto* column = mesh.vertexAttributes.find<float>(name)) s[name] = statistics(*column);
+    for (const ColumnInfo& c : columnTable())
+        if (const auto* column = c.summary ? mesh.vertexAttributes.find<float>(c.name) : nullptr)
+            s[std::string(c.name)] = statistics(*column);
     return s;
 }
 

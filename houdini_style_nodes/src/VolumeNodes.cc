@@ -2,13 +2,15 @@
 // hidden_features, truth (SPEC §3-§5, §8). The only translation unit of the node layer that
 // reads grids.
 #include "NodeFamilies.h"
+#include <isouq/Columns.h>
 
 #include <isouq/Diagnostics.h>
 #include <isouq/ErrorEstimate.h>
+#include <isouq/GridMetadata.h>
 #include <isouq/HiddenFeatures.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/MeshTopology.h>
-#include <isouq/Validation.h>
+#include <isouq/Truth.h>
 #include <isouq/VolumeSources.h>
 
 #include <cmath>
@@ -62,7 +64,7 @@ void cookReadVolume(CookContext& ctx)
     if (volume->isovalueSource != "given") {
         std::ostringstream line;
         line << "isovalue " << volume->isovalue << " (" << volume->isovalueSource
-             << "; set it with the isovalue parameter)";
+             << "; set it with the isovalue parameter, --isovalue)";
         ctx.warn(line.str());
     }
     ctx.outputs["volume"].volume = std::move(volume);
@@ -87,7 +89,11 @@ void cookMesh(CookContext& ctx)
     out->isovalue = settings.isovalue;
     out->method = linearOnly ? "linear" : p.getString("method");
     out->uncertainty = !linearOnly;
-    out->info["input"] = volume.description;
+    out->info["input"] = volume.input;
+    out->info["description"] = volume.description;
+    out->info["isovalue_source"] = settings.isovalue == volume.isovalue ? volume.isovalueSource : "given";
+    if (volume.denseBlocks > 0)
+        out->info["sparse_blocks"] = {{"dense", volume.denseBlocks}, {"kept", volume.keptBlocks}};
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
@@ -100,24 +106,21 @@ void cookErrorEstimate(CookContext& ctx)
     AttributeTable& a = out->mesh.vertexAttributes;
     const std::size_t n = out->mesh.vertexCount();
     // Add the columns before taking references: adding may move the others.
-    a.add<float>("err_est", n);
-    a.add<float>("err_bound", n);
-    std::vector<float>& est = *a.find<float>("err_est");
-    std::vector<float>& bound = *a.find<float>("err_bound");
-    const auto* ei = a.find<std::int32_t>("edge_i");
-    const auto* ej = a.find<std::int32_t>("edge_j");
-    const auto* ek = a.find<std::int32_t>("edge_k");
-    const auto* axis = a.find<std::uint8_t>("edge_axis");
-    const auto* tLinear = a.find<float>("t_linear");
+    a.add<float>(col::kErrEst, n);
+    a.add<float>(col::kErrBound, n);
+    std::vector<float>& est = *a.find<float>(col::kErrEst);
+    std::vector<float>& bound = *a.find<float>(col::kErrBound);
+    const auto* ei = a.find<std::int32_t>(col::kEdgeI);
+    const auto* ej = a.find<std::int32_t>(col::kEdgeJ);
+    const auto* ek = a.find<std::int32_t>(col::kEdgeK);
+    const auto* axis = a.find<std::uint8_t>(col::kEdgeAxis);
+    const auto* tLinear = a.find<float>(col::kTLinear);
     if (!ei || !ej || !ek || !axis || !tLinear)
         throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis t_linear (provenance)");
-    const auto* hidden = a.find<std::uint8_t>("hidden");
+    const auto* hidden = a.find<std::uint8_t>(col::kHidden);
 
     const openvdb::FloatGrid& grid = *volume.grid;
-    std::optional<openvdb::CoordBBox> bounds;
-    auto lo = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMinMeta);
-    auto hi = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
-    if (lo && hi) bounds = openvdb::CoordBBox(openvdb::Coord(lo->value()), openvdb::Coord(hi->value()));
+    const std::optional<openvdb::CoordBBox> bounds = dataBounds(grid);
     const openvdb::Vec3d voxel = grid.voxelSize();
 
     auto acc = grid.getConstAccessor();
@@ -179,7 +182,7 @@ void cookHiddenFeatures(CookContext& ctx)
         {"fraction", stats.fraction()}, {"cells_refined", stats.cellsRefined},
         {"cells_transition", stats.cellsTransition}, {"components_before", before.components},
         {"components_after", after.components}, {"boundary_edges", after.boundaryEdges},
-        {"subdivisions", hidden.subdivisions}};
+        {"subdivisions", hidden.subdivisions}, {"filter", hidden.filter}};
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
@@ -204,104 +207,84 @@ void cookTruth(CookContext& ctx)
 
 void addVolumeNodes(std::vector<NodeType>& types)
 {
-    NodeType read;
-    read.type = "read_volume";
-    read.label = "Read Volume";
-    read.description = "Loads a .vdb grid, a raw scan, a SPEC §5 field or a formula as a sparse FloatGrid "
-                       "and decides the isovalue (SPEC §8; docs/inputs.md).";
-    read.parms = {
-        parm("input", "Input", ParmType::String, "field:teardrop",
-            "FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR", "INPUT"),
-        parm("grid", "Grid", ParmType::String, nullptr, ".vdb: the float grid to read (unset: the first)", "--grid"),
-        ranged(parm("dims", "Dimensions", ParmType::Int3, nullptr, ".raw: X,Y,Z (unset: from the file name)", "--dims"),
-            std::nullopt, std::make_pair(1.0, 1.0e6)),
-        menuParm("dtype", "Data Type", {"uint8", "uint16", "int16", "float32", "float64"}, nullptr,
-            ".raw: sample type (unset: from the file name)", "--dtype"),
-        ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr, ".raw: voxel spacing X,Y,Z (unset: 1,1,1)", "--spacing"),
-            std::nullopt, std::make_pair(0.0, kInf)),
-        ranged(parm("resolution", "Resolution", ParmType::Int, nullptr,
-                   "field:/formula:: samples per axis, both domain ends included (unset: the paper's; 64)",
-                   "--resolution,-n"),
-            std::make_pair(16.0, 512.0), std::make_pair(2.0, 4096.0)),
-        parm("domain", "Domain", ParmType::Vec2, nullptr, "formula:: the cube [LO,HI]^3 (unset: -1,1)", "--domain"),
-        parm("isovalue", "Isovalue", ParmType::Float, nullptr,
-            "Isovalue k (unset: 0 for level sets, SPEC §5's value for fields, else Otsu's threshold "
-            "as a starting value; the value used is reported)",
-            "--isovalue,-k"),
-        menuParm("keep", "Keep Blocks", {"crossing", "crossing_or_hidden", "non_constant", "all"}, "crossing",
-            "Dense sources: which 8^3 blocks stay active (crossing_or_hidden for hidden features; "
-            "non_constant to mesh at other isovalues)"),
-    };
-    read.outputs = {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}};
-    read.cook = cookReadVolume;
-    types.push_back(std::move(read));
+    types.push_back({"read_volume", "Read Volume",
+        "Loads a .vdb grid, a raw scan, a SPEC §5 field or a formula as a sparse FloatGrid and decides the "
+        "isovalue (SPEC §8; docs/inputs.md).",
+        {
+            parm("input", "Input", ParmType::String, "field:teardrop",
+                "FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR", "INPUT"),
+            parm("grid", "Grid", ParmType::String, nullptr, ".vdb: the float grid to read (unset: the first)", "--grid"),
+            ranged(parm("dims", "Dimensions", ParmType::Int3, nullptr, ".raw: X,Y,Z (unset: from the file name)", "--dims"),
+                std::nullopt, std::make_pair(1.0, 1.0e6)),
+            menuParm("dtype", "Data Type", {"uint8", "uint16", "int16", "float32", "float64"}, nullptr,
+                ".raw: sample type (unset: from the file name)", "--dtype"),
+            ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr, ".raw: voxel spacing X,Y,Z (unset: 1,1,1)", "--spacing"),
+                std::nullopt, std::make_pair(0.0, kInf)),
+            ranged(parm("resolution", "Resolution", ParmType::Int, nullptr,
+                       "field:/formula:: samples per axis, both domain ends included (unset: the paper's; 64)",
+                       "--resolution,-n"),
+                std::make_pair(16.0, 512.0), std::make_pair(2.0, 4096.0)),
+            parm("domain", "Domain", ParmType::Vec2, nullptr, "formula:: the cube [LO,HI]^3 (unset: -1,1)", "--domain"),
+            parm("isovalue", "Isovalue", ParmType::Float, nullptr,
+                "Isovalue k (unset: 0 for level sets, SPEC §5's value for fields, else Otsu's threshold "
+                "as a starting value; the value used is reported)",
+                "--isovalue,-k"),
+            menuParm("keep", "Keep Blocks", {"crossing", "crossing_or_hidden", "non_constant", "all"}, "crossing",
+                "Dense sources: which 8^3 blocks stay active (crossing_or_hidden for hidden features; "
+                "non_constant to mesh at other isovalues)"),
+        },
+        {}, {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}},
+        cookReadVolume});
 
-    NodeType mesh;
-    mesh.type = "mesh";
-    mesh.label = "Mesh";
-    mesh.description = "Marching cubes on the sparse grid with linear, cubic and WENO crossings and the "
-                       "per-vertex estimates and method differences (paper sec. 3, 4.1; SPEC §2, §3, §6).";
-    mesh.parms = {
-        menuParm("method", "Method", methodMenu(), "weno", "Method that places the vertices (all are recorded)",
-            "--method,-m"),
-        parm("isovalue", "Isovalue", ParmType::Float, nullptr,
-            "Isovalue k (unset: the volume's; a dense source must be read at the same one)"),
-        parm("linear_only", "Linear Only", ParmType::Bool, false,
-            "Linear crossings only, no estimates: fastest", "--linear-only"),
-    };
-    mesh.inputs = {{"volume", "volume", "The volume to mesh"}};
-    mesh.outputs = {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}};
-    mesh.cook = cookMesh;
-    types.push_back(std::move(mesh));
+    types.push_back({"mesh", "Mesh",
+        "Marching cubes on the sparse grid with linear, cubic and WENO crossings and the per-vertex estimates "
+        "and method differences (paper sec. 3, 4.1; SPEC §2, §3, §6).",
+        {
+            menuParm("method", "Method", methodMenu(), "weno", "Method that places the vertices (all are recorded)",
+                "--method,-m"),
+            parm("isovalue", "Isovalue", ParmType::Float, nullptr,
+                "Isovalue k (unset: the volume's; a dense source must be read at the same one)"),
+            parm("linear_only", "Linear Only", ParmType::Bool, false, "Linear crossings only, no estimates: fastest",
+                "--linear-only"),
+        },
+        {{"volume", "volume", "The volume to mesh"}},
+        {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh});
 
-    NodeType est;
-    est.type = "error_estimate";
-    est.label = "Error Estimate";
-    est.description = "Recomputes the paper's estimate e (err_est) and the standard bound e_b (err_bound) of "
-                      "every vertex's linear crossing from the grid (paper sec. 4.1, SPEC §3); after a "
-                      "linear-only mesh it adds them.";
-    est.inputs = {{"volume", "volume", "The volume the mesh came from"},
-        {"mesh", "mesh", "A mesh with provenance (edge_i edge_j edge_k edge_axis t_linear)"}};
-    est.outputs = {{"mesh", "mesh", "The mesh with err_est and err_bound"}};
-    est.cook = cookErrorEstimate;
-    types.push_back(std::move(est));
+    types.push_back({"error_estimate", "Error Estimate",
+        "Recomputes the paper's estimate e (err_est) and the standard bound e_b (err_bound) of every vertex's "
+        "linear crossing from the grid (paper sec. 4.1, SPEC §3); after a linear-only mesh it adds them.",
+        {},
+        {{"volume", "volume", "The volume the mesh came from"},
+            {"mesh", "mesh", "A mesh with provenance (edge_i edge_j edge_k edge_axis t_linear)"}},
+        {{"mesh", "mesh", "The mesh with err_est and err_bound"}}, cookErrorEstimate});
 
-    NodeType hidden;
-    hidden.type = "hidden_features";
-    hidden.label = "Hidden Features";
-    hidden.description = "Refines the cells where the data turns around (slope rule) into m^3 tricubic subcells "
-                         "and patches transition cells with fans, without cracks (paper sec. 4.2, SPEC §4). "
-                         "Refined vertices have hidden = 1 and NaN method attributes.";
-    hidden.parms = {
-        ranged(parm("subdivisions", "Subdivisions", ParmType::Int, 4, "m: each refined cell becomes m^3 subcells",
-                   "--subdivisions"),
-            std::make_pair(2.0, 8.0), std::make_pair(1.0, 64.0)),
-        parm("filter", "Filter", ParmType::Bool, true,
-            "Refine only where marching cubes cannot see what the tricubic shows (a sign the corners "
-            "hide, or how an ambiguous cell's pieces connect): as many reconnections, far fewer cells "
-            "and noise bubbles on scans; --no-hidden-filter refines every flagged cell the tricubic "
-            "surface passes through (docs/hidden-features.md)",
-            "--hidden-filter"),
-    };
-    hidden.inputs = {{"volume", "volume", "The volume the mesh came from"},
-        {"mesh", "mesh", "The standard mesh, straight from a mesh node"}};
-    hidden.outputs = {{"mesh", "mesh", "The mesh with hidden features and the `hidden` block (components "
-                                       "before and after)"}};
-    hidden.cook = cookHiddenFeatures;
-    types.push_back(std::move(hidden));
+    types.push_back({"hidden_features", "Hidden Features",
+        "Refines the cells where the data turns around (slope rule) into m^3 tricubic subcells and patches "
+        "transition cells with fans, without cracks (paper sec. 4.2, SPEC §4). Refined vertices have "
+        "hidden = 1 and NaN method attributes.",
+        {
+            ranged(parm("subdivisions", "Subdivisions", ParmType::Int, 4, "m: each refined cell becomes m^3 subcells",
+                       "--subdivisions"),
+                std::make_pair(2.0, 8.0), std::make_pair(1.0, 64.0)),
+            parm("filter", "Filter", ParmType::Bool, true,
+                "Refine only where marching cubes cannot see what the tricubic shows (a sign the corners "
+                "hide, or how an ambiguous cell's pieces connect): as many reconnections, far fewer cells "
+                "and noise bubbles on scans; --no-hidden-filter refines every flagged cell the tricubic "
+                "surface passes through (docs/hidden-features.md)",
+                "--hidden-filter"),
+        },
+        {{"volume", "volume", "The volume the mesh came from"},
+            {"mesh", "mesh", "The standard mesh, straight from a mesh node"}},
+        {{"mesh", "mesh", "The mesh with hidden features and the `hidden` block (components before and after)"}},
+        cookHiddenFeatures});
 
-    NodeType truth;
-    truth.type = "truth";
-    truth.label = "Truth";
-    truth.description = "Measured errors against the exact field of a field: or formula: input (SPEC §3): "
-                        "err_true_<method> on each vertex's edge and dist_true to the true surface.";
-    truth.parms = {parm("per_method_distance", "Per-Method Distance", ParmType::Bool, false,
-        "Also dist_true_<method> for every method's crossing")};
-    truth.inputs = {{"volume", "volume", "A field: or formula: volume"},
-        {"mesh", "mesh", "A mesh of it with provenance"}};
-    truth.outputs = {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}};
-    truth.cook = cookTruth;
-    types.push_back(std::move(truth));
+    types.push_back({"truth", "Truth",
+        "Measured errors against the exact field of a field: or formula: input (SPEC §3): err_true_<method> on "
+        "each vertex's edge and dist_true to the true surface.",
+        {parm("per_method_distance", "Per-Method Distance", ParmType::Bool, false,
+            "Also dist_true_<method> for every method's crossing")},
+        {{"volume", "volume", "A field: or formula: volume"}, {"mesh", "mesh", "A mesh of it with provenance"}},
+        {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}}, cookTruth});
 }
 
 } // namespace isouq::nodes::nodes_internal

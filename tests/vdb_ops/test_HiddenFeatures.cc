@@ -2,6 +2,7 @@
 // fields whose hidden features and surfaces are known in closed form, fine-resolution truths for
 // the paper's Teardrop and Tubey, and crack counts on every closed surface of the test data.
 #include <isouq/HiddenFeatures.h>
+#include <isouq/GridMetadata.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/MeshIO.h>
 #include <isouq/MeshTopology.h>

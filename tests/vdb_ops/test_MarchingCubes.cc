@@ -1,6 +1,7 @@
 // Tests of the sparse marching-cubes mesher against independent truths: analytic surfaces,
 // a brute-force dense pass over every grid edge, edge-use counts for watertightness, and exact
 // counts for tiles and plateaus (SPEC §1, §8, §9).
+#include <isouq/GridMetadata.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/VolumeSources.h>
 

@@ -1,6 +1,7 @@
 // Tests for isouq/VolumeSources.h. Truths: bytes written or read directly by the test, hand
 // formulas, brute force over every edge of the dense array, the data README's Otsu values.
 #include <isouq/Diagnostics.h>
+#include <isouq/GridMetadata.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/VolumeSources.h>
 

@@ -14,6 +14,9 @@
 // cuts it. Every crossing is the start of one face segment and the end of another, so the
 // segments of a transition cell form closed loops.
 #include "HiddenInternal.h"
+#include "isouq/Columns.h"
+
+#include "isouq/GridMetadata.h"
 
 #include <tbb/parallel_sort.h>
 
@@ -32,17 +35,14 @@ inline Coord times(const Coord& c, int s) { return Coord(c[0] * s, c[1] * s, c[2
 std::optional<CoordBBox> dataBoundsOf(const openvdb::FloatGrid& grid, const MeshSettings& settings)
 {
     if (settings.dataBounds) return settings.dataBounds;
-    auto lo = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMinMeta);
-    auto hi = grid.getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
-    if (!lo || !hi) return std::nullopt;
-    return CoordBBox(Coord(lo->value()), Coord(hi->value()));
+    return dataBounds(grid);
 }
 
 /// The standard vertex columns extractWithHiddenFeatures asked for only to merge (SPEC §6
 /// provenance, and t_linear, which the mesher writes with it).
 bool isProvenanceColumn(const std::string& name)
 {
-    return name == "edge_i" || name == "edge_j" || name == "edge_k" || name == "edge_axis" || name == "t_linear";
+    return name == col::kEdgeI || name == col::kEdgeJ || name == col::kEdgeK || name == col::kEdgeAxis || name == col::kTLinear;
 }
 
 /// addHiddenFeatures; without @a keepProvenance the result has no isProvenanceColumn columns.
@@ -57,10 +57,10 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
                                                + std::to_string(m) + ")");
     if (!std::isfinite(settings.isovalue))
         OPENVDB_THROW(openvdb::ValueError, "the isovalue must be a finite number");
-    const auto* edgeI = standard.vertexAttributes.find<std::int32_t>("edge_i");
-    const auto* edgeJ = standard.vertexAttributes.find<std::int32_t>("edge_j");
-    const auto* edgeK = standard.vertexAttributes.find<std::int32_t>("edge_k");
-    const auto* edgeAxis = standard.vertexAttributes.find<std::uint8_t>("edge_axis");
+    const auto* edgeI = standard.vertexAttributes.find<std::int32_t>(col::kEdgeI);
+    const auto* edgeJ = standard.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
+    const auto* edgeK = standard.vertexAttributes.find<std::int32_t>(col::kEdgeK);
+    const auto* edgeAxis = standard.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
     if (!edgeI || !edgeJ || !edgeK || !edgeAxis)
         OPENVDB_THROW(openvdb::ValueError,
             "hidden features: the standard mesh needs provenance (edge_i edge_j edge_k edge_axis)");
@@ -127,8 +127,8 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
     };
     if (refined.empty()) { // nothing refined: the standard mesh, all of it standard
         dropProvenance();
-        mesh.vertexAttributes.add<std::uint8_t>("hidden", mesh.vertexCount());
-        mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
+        mesh.vertexAttributes.add<std::uint8_t>(col::kHidden, mesh.vertexCount());
+        mesh.faceAttributes.add<std::uint8_t>(col::kHidden, mesh.triangleCount());
         return std::move(mesh);
     }
     CoordBBox region;
@@ -299,10 +299,10 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
             std::fill(dst.begin() + std::ptrdiff_t(fineBase), dst.end(), fill);
         }, column.data);
     }
-    if (auto* ei = keepProvenance ? mesh.vertexAttributes.find<std::int32_t>("edge_i") : nullptr) {
-        auto& ej = *mesh.vertexAttributes.find<std::int32_t>("edge_j");
-        auto& ek = *mesh.vertexAttributes.find<std::int32_t>("edge_k");
-        auto& ea = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
+    if (auto* ei = keepProvenance ? mesh.vertexAttributes.find<std::int32_t>(col::kEdgeI) : nullptr) {
+        auto& ej = *mesh.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
+        auto& ek = *mesh.vertexAttributes.find<std::int32_t>(col::kEdgeK);
+        auto& ea = *mesh.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
         auto floorDiv = [m](int v) { return v >= 0 ? v / m : -((-v + m - 1) / m); };
         for (std::size_t i = 0; i < fine.size(); ++i) {
             const Coord p = packer.finePoint(fine[i].key);
@@ -321,7 +321,7 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
                 ea[v] = 255;
             }
     }
-    auto& hiddenVertex = mesh.vertexAttributes.add<std::uint8_t>("hidden", vertexCount);
+    auto& hiddenVertex = mesh.vertexAttributes.add<std::uint8_t>(col::kHidden, vertexCount);
     std::fill(hiddenVertex.begin() + std::ptrdiff_t(fineBase), hiddenVertex.end(), std::uint8_t(1));
     for (Attribute& column : mesh.faceAttributes.columns()) {
         std::visit([&](auto& dst) {
@@ -332,7 +332,7 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
             std::fill(dst.begin() + std::ptrdiff_t(keptTriangles), dst.end(), T{});
         }, column.data);
     }
-    auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>("hidden", mesh.triangleCount());
+    auto& hiddenFace = mesh.faceAttributes.add<std::uint8_t>(col::kHidden, mesh.triangleCount());
     std::fill(hiddenFace.begin() + std::ptrdiff_t(keptTriangles), hiddenFace.end(), std::uint8_t(1));
     dropProvenance();
     return std::move(mesh);

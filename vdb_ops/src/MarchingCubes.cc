@@ -10,6 +10,7 @@
 // A vertex's global index is its block's offset plus the rank of its bit in the block's mask, so
 // the output never depends on the thread count and needs no hash map.
 #include "isouq/MarchingCubes.h"
+#include "isouq/GridMetadata.h"
 #include "isouq/McTables.h"
 
 #include "BlockScratch.h"
@@ -151,10 +152,7 @@ template <typename GridT>
 std::optional<CoordBBox> dataBoundsOf(const GridT& grid, const MeshSettings& settings)
 {
     if (settings.dataBounds) return settings.dataBounds;
-    auto lo = grid.template getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMinMeta);
-    auto hi = grid.template getMetadata<openvdb::Vec3IMetadata>(kDataBoundsMaxMeta);
-    if (!lo || !hi) return std::nullopt;
-    return CoordBBox(Coord(lo->value()), Coord(hi->value()));
+    return dataBounds(grid);
 }
 
 /// The box of minimum corners of the cells that may be meshed: all corners inside the data

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "isouq/EdgeInterp.h"
+#include "isouq/Columns.h"
 #include "isouq/ErrorEstimate.h"
 #include "isouq/MarchingCubes.h"
 
@@ -78,39 +79,39 @@ private:
         c.positions = mesh.positions.data();
         const std::size_t n = mesh.positions.size();
         AttributeTable& a = mesh.vertexAttributes;
-        auto addFloat = [&](const char* name) {
+        auto addFloat = [&](std::string_view name) {
             names.emplace_back(name);
             return a.add<float>(name, n).data();
         };
-        auto addInt = [&](const char* name) {
+        auto addInt = [&](std::string_view name) {
             names.emplace_back(name);
             return a.add<std::int32_t>(name, n).data();
         };
         if (provenance) {
-            c.edgeI = addInt("edge_i");
-            c.edgeJ = addInt("edge_j");
-            c.edgeK = addInt("edge_k");
-            names.emplace_back("edge_axis");
-            c.edgeAxis = a.add<std::uint8_t>("edge_axis", n).data();
-            c.tLinear = addFloat("t_linear");
+            c.edgeI = addInt(col::kEdgeI);
+            c.edgeJ = addInt(col::kEdgeJ);
+            c.edgeK = addInt(col::kEdgeK);
+            names.emplace_back(col::kEdgeAxis);
+            c.edgeAxis = a.add<std::uint8_t>(col::kEdgeAxis, n).data();
+            c.tLinear = addFloat(col::kTLinear);
         }
         if (!settings.uncertainty) return;
-        c.errEst = addFloat("err_est");
-        c.errBound = addFloat("err_bound");
+        c.errEst = addFloat(col::kErrEst);
+        c.errBound = addFloat(col::kErrBound);
         if (!settings.highOrder) return;
-        c.tCubic = addFloat("t_cubic");
-        c.tWeno = addFloat("t_weno");
-        if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat("t_weno_paper");
-        names.emplace_back("order");
-        c.order = a.add<std::uint8_t>("order", n).data();
-        c.errBest = addFloat("err_best");
-        c.errBestSurface = addFloat("err_best_surface");
-        c.errEstCubic = addFloat("err_est_cubic");
-        c.errEstWeno = addFloat("err_est_weno");
-        c.dLc = addFloat("d_lc");
-        c.dLw = addFloat("d_lw");
-        c.dCw = addFloat("d_cw");
-        c.maxVar = addFloat("max_var");
+        c.tCubic = addFloat(col::kTCubic);
+        c.tWeno = addFloat(col::kTWeno);
+        if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat(col::kTWenoPaper);
+        names.emplace_back(col::kOrder);
+        c.order = a.add<std::uint8_t>(col::kOrder, n).data();
+        c.errBest = addFloat(col::kErrBest);
+        c.errBestSurface = addFloat(col::kErrBestSurface);
+        c.errEstCubic = addFloat(col::kErrEstCubic);
+        c.errEstWeno = addFloat(col::kErrEstWeno);
+        c.dLc = addFloat(col::kDLc);
+        c.dLw = addFloat(col::kDLw);
+        c.dCw = addFloat(col::kDCw);
+        c.maxVar = addFloat(col::kMaxVar);
         return;
     }
 };

@@ -1,163 +1,25 @@
-// isouq: measured errors against analytic truths and METRO references (paper sec. 4.1,
-// Figs. 3-4; SPEC §3, §5, §6; docs/validation.md).
+// isouq: METRO references, the statistics that compare estimates with measured errors, and
+// the paper's experiments (paper sec. 4.1, Figs. 3-4; SPEC §3, §5; docs/validation.md).
 #include "isouq/Validation.h"
 
+#include "ValidationInternal.h"
+
+#include "isouq/Columns.h"
 #include "isouq/EdgeInterp.h"
 #include "isouq/MarchingCubes.h"
 #include "isouq/VolumeSources.h"
 
-#include <openvdb/Exceptions.h>
 #include <openvdb/math/Proximity.h>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <limits>
 #include <numeric>
 
 namespace isouq {
 namespace validation_internal {
+namespace {
 
-using openvdb::Vec3d;
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-/// Runs body(begin, end) over [0, n) in parallel or serially; every index is independent.
-template <typename BodyT>
-void forEachIndex(std::size_t n, bool threaded, const BodyT& body)
-{
-    if (!threaded) {
-        body(std::size_t(0), n);
-        return;
-    }
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
-        [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); });
-}
-
-/// Root of g on [lo, hi] with g(lo), g(hi) of opposite signs: Illinois regula falsi, which
-/// keeps the bracket and converges superlinearly; stops at a relative width of ~1e-15.
-template <typename FunT>
-double refineRoot(const FunT& g, double lo, double hi, double gLo, double gHi)
-{
-    int side = 0;
-    for (int it = 0; it < 200 && hi - lo > 1e-15; ++it) {
-        double t = (lo * gHi - hi * gLo) / (gHi - gLo);
-        if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
-        const double gt = g(t);
-        if (gt == 0.0) return t;
-        if ((gt < 0.0) == (gLo < 0.0)) {
-            lo = t;
-            gLo = gt;
-            if (side == -1) gHi *= 0.5;
-            side = -1;
-        } else {
-            hi = t;
-            gHi = gt;
-            if (side == 1) gLo *= 0.5;
-            side = 1;
-        }
-    }
-    return 0.5 * (lo + hi);
-}
-
-Vec3d gradient(const AnalyticField& field, const Vec3d& p, double step)
-{
-    Vec3d g;
-    for (int a = 0; a < 3; ++a) {
-        Vec3d lo = p, hi = p;
-        lo[a] -= step;
-        hi[a] += step;
-        g[a] = (field(hi[0], hi[1], hi[2]) - field(lo[0], lo[1], lo[2])) / (2.0 * step);
-    }
-    return g;
-}
-
-/// Newton steps q <- q - (f(q) - k) g / |g|^2 with backtracking on |f - k|; false if stuck.
-bool projectToSurface(const AnalyticField& field, double k, Vec3d& q, double scale)
-{
-    const double step = 1e-6 * scale;
-    double r = field(q[0], q[1], q[2]) - k;
-    for (int it = 0; it < 100; ++it) {
-        const Vec3d g = gradient(field, q, step);
-        const double g2 = g.lengthSqr();
-        if (!(g2 > 0.0) || !std::isfinite(r)) return false;
-        const Vec3d delta = g * (-r / g2);
-        if (delta.length() < 1e-13 * scale) return true;
-        double lambda = 1.0;
-        for (int ls = 0; ls < 40; ++ls, lambda *= 0.5) {
-            const Vec3d trial = q + delta * lambda;
-            const double rt = field(trial[0], trial[1], trial[2]) - k;
-            if (std::abs(rt) < std::abs(r) * (1.0 - 1e-4 * lambda)) {
-                q = trial;
-                r = rt;
-                break;
-            }
-        }
-        if (lambda < 1e-12) return std::abs(r) / std::sqrt(g2) < 1e-12 * scale;
-    }
-    return std::abs(r) / gradient(field, q, step).length() < 1e-12 * scale;
-}
-
-/// From a surface point q, slide along the surface until p - q is normal to it.
-double closestPointDistance(const AnalyticField& field, double k, const Vec3d& p, Vec3d q, double scale)
-{
-    if (!projectToSurface(field, k, q, scale)) return kNaN;
-    for (int it = 0; it < 200; ++it) {
-        Vec3d n = gradient(field, q, 1e-6 * scale);
-        n.normalize();
-        const Vec3d v = p - q;
-        const Vec3d tangential = v - n * v.dot(n);
-        if (tangential.length() < 1e-9 * scale) return v.length();
-        // Damped: accept a move only if it brings q closer to p.
-        double lambda = 1.0;
-        bool moved = false;
-        for (int ls = 0; ls < 30 && !moved; ++ls, lambda *= 0.5) {
-            Vec3d trial = q + tangential * lambda;
-            if (!projectToSurface(field, k, trial, scale)) continue;
-            if ((p - trial).length() <= v.length()) {
-                q = trial;
-                moved = true;
-            }
-        }
-        if (!moved) return v.length(); // a local minimum of the distance up to rounding
-    }
-    return (p - q).length();
-}
-
-Vec3d toWorld(const std::array<double, 16>& m, const Vec3d& ijk)
-{
-    return Vec3d(m[0] * ijk[0] + m[1] * ijk[1] + m[2] * ijk[2] + m[3],
-        m[4] * ijk[0] + m[5] * ijk[1] + m[6] * ijk[2] + m[7],
-        m[8] * ijk[0] + m[9] * ijk[1] + m[10] * ijk[2] + m[11]);
-}
-
-/// The provenance columns of a mesh.
-struct Provenance {
-    const std::vector<std::int32_t> *i, *j, *k;
-    const std::vector<std::uint8_t>* axis;
-
-    explicit Provenance(const Mesh& mesh)
-    {
-        const AttributeTable& a = mesh.vertexAttributes;
-        i = a.find<std::int32_t>("edge_i");
-        j = a.find<std::int32_t>("edge_j");
-        k = a.find<std::int32_t>("edge_k");
-        axis = a.find<std::uint8_t>("edge_axis");
-        if (!i || !j || !k || !axis)
-            OPENVDB_THROW(openvdb::ValueError,
-                "validation needs the provenance columns edge_i edge_j edge_k edge_axis "
-                "(mesh with settings.provenance or settings.uncertainty)");
-    }
-    Vec3d lower(std::size_t n) const { return Vec3d((*i)[n], (*j)[n], (*k)[n]); }
-    Vec3d along(std::size_t n, double t) const
-    {
-        Vec3d p = lower(n);
-        p[(*axis)[n]] += t;
-        return p;
-    }
-};
 
 std::uint64_t cellKey(const openvdb::Coord& c)
 {
@@ -181,129 +43,11 @@ std::vector<double> midRanks(const std::vector<double>& v)
     return rank;
 }
 
+
+} // namespace
 } // namespace validation_internal
 
 using namespace validation_internal;
-
-EdgeRoot exactEdgeCrossing(const AnalyticField& field, double k, const Vec3d& a, const Vec3d& b)
-{
-    const Vec3d d = b - a;
-    auto g = [&](double t) { return field(a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]) - k; };
-    constexpr int kSub = 32;
-    double roots[kSub];
-    int count = 0;
-    double tPrev = 0.0, gPrev = g(0.0);
-    double nearest = 0.0, nearestAbs = std::abs(gPrev);
-    for (int s = 1; s <= kSub; ++s) {
-        const double t = double(s) / kSub, gt = g(t);
-        if (std::abs(gt) < nearestAbs) {
-            nearest = t;
-            nearestAbs = std::abs(gt);
-        }
-        if (gPrev == 0.0) {
-            roots[count++] = tPrev;
-        } else if ((gPrev < 0.0) != (gt < 0.0) && gt != 0.0) {
-            roots[count++] = refineRoot(g, tPrev, t, gPrev, gt);
-        } else if (gt == 0.0 && s == kSub) {
-            roots[count++] = t;
-        }
-        tPrev = t;
-        gPrev = gt;
-    }
-    if (count == 0) return {nearest, 0};
-    return {roots[(count - 1) / 2], count};
-}
-
-double distanceToLevelSet(const AnalyticField& field, double k, const Vec3d& p, double scale, const Vec3d* seed)
-{
-    double d = closestPointDistance(field, k, p, p, scale);
-    if (seed && !(d <= (p - *seed).length())) {
-        const double fromSeed = closestPointDistance(field, k, p, *seed, scale);
-        if (std::isnan(d) || fromSeed < d) d = fromSeed;
-    }
-    return d;
-}
-
-std::vector<Vec3d> crossingPositions(const Mesh& mesh, const std::string& tColumn)
-{
-    const Provenance prov(mesh);
-    const std::vector<float>* t = mesh.vertexAttributes.find<float>(tColumn);
-    if (!t) OPENVDB_THROW(openvdb::ValueError, "the mesh has no column " + tColumn);
-    std::vector<Vec3d> out(t->size());
-    for (std::size_t n = 0; n < out.size(); ++n) out[n] = toWorld(mesh.indexToWorld, prov.along(n, (*t)[n]));
-    return out;
-}
-
-TruthReport addTruthColumns(Mesh& mesh, const AnalyticField& field, double isovalue, const TruthSettings& settings)
-{
-    Provenance prov(mesh);
-    const std::size_t n = mesh.positions.size();
-    const std::array<double, 16>& m = mesh.indexToWorld;
-    // Smallest grid spacing: the length scale for gradients and tolerances.
-    double scale = std::numeric_limits<double>::infinity();
-    for (int a = 0; a < 3; ++a) scale = std::min(scale, Vec3d(m[a], m[4 + a], m[8 + a]).length());
-
-    // Exact crossing of every vertex's edge (SPEC §3 edge error).
-    std::vector<double> tExact(n);
-    std::vector<std::uint8_t> rootCount(n);
-    forEachIndex(n, settings.threaded, [&](std::size_t b, std::size_t e) {
-        for (std::size_t v = b; v < e; ++v) {
-            const EdgeRoot r = exactEdgeCrossing(field, isovalue, toWorld(m, prov.lower(v)),
-                toWorld(m, prov.along(v, 1.0)));
-            tExact[v] = r.t;
-            rootCount[v] = std::uint8_t(std::min(r.roots, 255));
-        }
-    });
-
-    // Add every column first, then take pointers: adding a column may move the others.
-    std::vector<std::string> present;
-    for (const char* method : kValidationMethods)
-        if (mesh.vertexAttributes.find<float>(std::string("t_") + method)) present.emplace_back(method);
-    for (const std::string& name : present) {
-        mesh.vertexAttributes.add<float>("err_true_" + name, n);
-        if (settings.perMethodDistance) mesh.vertexAttributes.add<float>("dist_true_" + name, n);
-    }
-    mesh.vertexAttributes.add<float>("dist_true", n);
-    struct MethodColumns {
-        const std::vector<float>* t;
-        std::vector<float>* errTrue;
-        std::vector<float>* distTrue;
-    };
-    std::vector<MethodColumns> methods;
-    AttributeTable& table = mesh.vertexAttributes;
-    for (const std::string& name : present)
-        methods.push_back({table.find<float>("t_" + name), table.find<float>("err_true_" + name),
-            settings.perMethodDistance ? table.find<float>("dist_true_" + name) : nullptr});
-    std::vector<float>& dist = *table.find<float>("dist_true");
-    prov = Provenance(mesh); // the table's columns may have moved
-
-    std::atomic<std::size_t> failed{0};
-    forEachIndex(n, settings.threaded, [&](std::size_t b, std::size_t e) {
-        std::size_t localFailed = 0;
-        for (std::size_t v = b; v < e; ++v) {
-            const Vec3d exact = toWorld(m, prov.along(v, tExact[v]));
-            for (const MethodColumns& c : methods) {
-                const Vec3d x = toWorld(m, prov.along(v, (*c.t)[v]));
-                (*c.errTrue)[v] = float((x - exact).length());
-                if (c.distTrue) (*c.distTrue)[v] = float(distanceToLevelSet(field, isovalue, x, scale, &exact));
-            }
-            const openvdb::Vec3s& p = mesh.positions[v];
-            const double d = distanceToLevelSet(field, isovalue, Vec3d(p[0], p[1], p[2]), scale, &exact);
-            dist[v] = float(d);
-            if (std::isnan(d)) ++localFailed;
-        }
-        failed += localFailed;
-    });
-
-    TruthReport report;
-    report.vertices = n;
-    report.failedProjections = failed;
-    for (std::uint8_t c : rootCount) {
-        if (c == 0) ++report.noRootEdges;
-        if (c > 1) ++report.multiRootEdges;
-    }
-    return report;
-}
 
 // ---- METRO ----------------------------------------------------------------------------------
 
@@ -479,14 +223,14 @@ Mesh meshAllMethods(const openvdb::FloatGrid& grid, float isovalue)
     Mesh mesh = extractIsosurface(grid, settings);
     settings.method = EdgeMethod::WenoPaper;
     const Mesh paper = extractIsosurface(grid, settings);
-    const auto* paperT = paper.vertexAttributes.find<float>("t_weno_paper");
-    const auto *edgeI = mesh.vertexAttributes.find<std::int32_t>("edge_i"),
-               *paperI = paper.vertexAttributes.find<std::int32_t>("edge_i");
-    const auto *axis = mesh.vertexAttributes.find<std::uint8_t>("edge_axis"),
-               *paperAxis = paper.vertexAttributes.find<std::uint8_t>("edge_axis");
+    const auto* paperT = paper.vertexAttributes.find<float>(col::kTWenoPaper);
+    const auto *edgeI = mesh.vertexAttributes.find<std::int32_t>(col::kEdgeI),
+               *paperI = paper.vertexAttributes.find<std::int32_t>(col::kEdgeI);
+    const auto *axis = mesh.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis),
+               *paperAxis = paper.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
     if (!paperT || *edgeI != *paperI || *axis != *paperAxis)
         OPENVDB_THROW(openvdb::RuntimeError, "weno-paper pass produced different vertices");
-    mesh.vertexAttributes.add<float>("t_weno_paper", paperT->size()) = *paperT;
+    mesh.vertexAttributes.add<float>(col::kTWenoPaper, paperT->size()) = *paperT;
     return mesh;
 }
 
@@ -521,8 +265,8 @@ ValidationResult runValidationCase(const ValidationCase& spec)
         const Mesh reference = extractIsosurface(*fine.grid, settings);
         result.referenceTriangles = reference.triangles.size();
         const ReferenceSurface surface(reference, volume.truth->spacing(spec.resolution));
-        result.mesh.vertexAttributes.add<float>("dist_metro_linear", result.mesh.positions.size()) =
-            metroDistances(surface, crossingPositions(result.mesh, "t_linear"));
+        result.mesh.vertexAttributes.add<float>(col::kDistMetroLinear, result.mesh.positions.size()) =
+            metroDistances(surface, crossingPositions(result.mesh, col::kTLinear));
     }
     return result;
 }
@@ -537,7 +281,7 @@ ConvergenceRow convergenceRow(const std::string& fieldName, int resolution)
     addTruthColumns(mesh, *volume.truth, volume.isovalue);
     const AnalyticField& field = *volume.truth;
     const Provenance prov(mesh);
-    const auto& order = *mesh.vertexAttributes.find<std::uint8_t>("order");
+    const auto& order = *mesh.vertexAttributes.find<std::uint8_t>(col::kOrder);
     const double k = double(volume.isovalue);
 
     ConvergenceRow row;
@@ -548,7 +292,7 @@ ConvergenceRow convergenceRow(const std::string& fieldName, int resolution)
     // Per vertex squared errors [mesher m, exact m]; summed serially for determinism.
     std::array<const std::vector<float>*, 4> errTrue;
     for (int q = 0; q < 4; ++q)
-        errTrue[q] = mesh.vertexAttributes.find<float>(std::string("err_true_") + kValidationMethods[q]);
+        errTrue[q] = mesh.vertexAttributes.find<float>(errTrueColumn(kAllMethods[q]));
     std::vector<std::array<double, 8>> sq(n);
     std::vector<std::uint8_t> interior(n);
     forEachIndex(n, true, [&](std::size_t b, std::size_t e) {

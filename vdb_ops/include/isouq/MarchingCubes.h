@@ -31,11 +31,6 @@ enum class StencilPolicy {
     ActiveOnly, ///< inactive voxels are missing: the method falls back to a lower order
 };
 
-/// Grid metadata written by isouq's dense sources: the index box holding real data. Cells
-/// outside it are not meshed and stencil voxels outside it are missing (SPEC §1).
-inline constexpr const char* kDataBoundsMinMeta = "isouq_data_min";
-inline constexpr const char* kDataBoundsMaxMeta = "isouq_data_max";
-
 struct MeshSettings {
     float isovalue = 0.0f;
     /// false: linear crossings only, positions and triangles (fastest); true: all methods,

@@ -2,22 +2,15 @@
 // atomic file writing. The exact header is documented in docs/ply-format.md.
 #pragma once
 
+#include "isouq/Errors.h"
 #include "isouq/MeshAttributes.h"
 
 #include <memory>
 #include <optional>
-#include <stdexcept>
 #include <string>
 #include <vector>
 
 namespace isouq {
-
-/// A file could not be written or read. what() is one line naming the path and the reason,
-/// e.g. "cannot write /nonexistent/x.ply: No such file or directory".
-class IoError : public std::runtime_error {
-public:
-    using std::runtime_error::runtime_error;
-};
 
 /// Header comments of a PLY file written by isouq, in this order (docs/ply-format.md):
 /// `comment isouq version V`, `comment isouq index_to_world m00 ... m33` (always),

@@ -5,10 +5,11 @@
 // (raw, field, formula) are streamed in slabs of 8 z-slices and made sparse on the way: an 8^3
 // block becomes an active leaf only where the surface can be (KeepBlocks), the rest inactive
 // tiles, so the grid's memory follows the surface, not the bounding box. Dense grids carry the
-// data box as kDataBoundsMinMeta/MaxMeta (MarchingCubes.h).
+// data box as grid metadata (GridMetadata.h).
 #pragma once
 
 #include "isouq/AnalyticFields.h"
+#include "isouq/Errors.h"
 
 #include <openvdb/openvdb.h>
 #include <openvdb/util/NullInterrupter.h>
@@ -22,12 +23,6 @@
 #include <utility>
 
 namespace isouq {
-
-/// Bad input (missing or malformed file, unknown field, bad formula, ...); what() is one line
-/// without the "isouq: error:" prefix.
-struct InputError : std::runtime_error {
-    using std::runtime_error::runtime_error;
-};
 
 /// Which 8^3 blocks of a dense source become active leaves; the others become inactive
 /// leaf-level tiles holding a value on the same side of the isovalue as the block.
@@ -58,6 +53,7 @@ struct VolumeRequest {
 };
 
 struct LoadedVolume {
+    std::string input;          ///< the request's INPUT
     openvdb::FloatGrid::Ptr grid;
     float isovalue = 0.0f;      ///< the one to use: given, or the default (SPEC §8)
     std::string isovalueSource; ///< "given", "level set", "SPEC §5 default", "formula default",

@@ -57,6 +57,10 @@ struct CookContext {
     openvdb::util::NullInterrupter* interrupter = nullptr;
     std::vector<std::string>* warnings = nullptr; ///< one line each, naming the skipped item
     std::vector<PendingWrite>* writes = nullptr;
+    /// Cook times (ms) of the nodes upstream of this one, by node id, in running order.
+    std::function<nlohmann::json()> upstreamTimings;
+    /// The files that mesh writers (NodeType::meshWriter) make of what input @a port reads.
+    std::function<std::vector<std::string>(const std::string& port)> destinations;
 
     const NodeValue* input(const std::string& name) const
     {
@@ -77,6 +81,7 @@ struct NodeType {
     std::vector<PortSpec> inputs;
     std::vector<PortSpec> outputs;
     std::function<void(CookContext&)> cook;
+    bool meshWriter = false; ///< writes its input mesh to the file its first path parameter names
 
     const ParmSpec* findParm(const std::string& token) const
     {
@@ -97,8 +102,5 @@ nlohmann::json nodeTypesJson();
 
 /// The parameter tables as Markdown (docs/node-parameters.md is this text).
 std::string nodeTypesMarkdown();
-
-/// Per-vertex measures a threshold or summary can use (SPEC §6).
-const std::vector<std::string>& measureNames();
 
 } // namespace isouq::nodes

@@ -1,0 +1,32 @@
+// isouq nodes: the graph that meshes one input (SPEC §8, §10 "One runner"; STYLE "One
+// pipeline"). `isouq mesh` and `isouq demo` build it from their flags (each flag is a node
+// parameter) and hand it to runGraph, as `isouq run` does with a file; the entry points that
+// come later (sequences, Python, MPI, the add-on) build it too.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+namespace isouq::nodes {
+
+struct MeshGraphRequest {
+    nlohmann::json read = nlohmann::json::object();   ///< read_volume parameters (input, grid, isovalue, ...)
+    nlohmann::json mesh = nlohmann::json::object();   ///< mesh parameters (method, linear_only)
+    nlohmann::json hidden = nlohmann::json::object(); ///< hidden_features parameters (subdivisions, filter)
+    bool hiddenFeatures = false; ///< also recover hidden features (SPEC §4): the summary's `hidden` block
+    std::string output;          ///< the mesh (write_ply path)
+    std::string hiddenOutput;    ///< the hidden-feature mesh ("" for none; implies hiddenFeatures)
+    std::string summaryPath;     ///< the SPEC §8 summary ("" for none)
+};
+
+/// Node ids of the graph meshGraph() builds: `load` (read_volume), `mesh`, `truth` (field: and
+/// formula: inputs, unless linear_only), `hidden`, `summary`, `write`, `write_hidden`,
+/// `write_summary`. The summary node's json output is the summary the command prints.
+inline constexpr const char* kMeshGraphSummary = "summary";
+
+/// The graph document (the JSON `isouq run` reads; `--save-graph` writes it). Paths stay as
+/// given, so the saved graph run from the same folder writes the same files.
+nlohmann::json meshGraph(const MeshGraphRequest& request);
+
+} // namespace isouq::nodes

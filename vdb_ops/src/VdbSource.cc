@@ -1,0 +1,172 @@
+// isouq: .vdb inputs: the first float grid or --grid NAME, read after a bounded walk of the
+// file layout (SPEC §8; docs/inputs.md).
+#include "SourcesInternal.h"
+
+#include <openvdb/io/File.h>
+
+#include <filesystem>
+#include <fstream>
+
+namespace isouq {
+namespace sources_internal {
+
+namespace fs = std::filesystem;
+
+// VDB files: OpenVDB 10 neither checks lengths nor offsets against the file size (a truncated
+// header can crash it, a truncated grid reads silently as a partial one), so the header and
+// grid descriptors are walked first with bounded reads and every grid's end checked.
+class BoundedReader {
+public:
+    BoundedReader(std::ifstream& in, std::uint64_t size, const std::string& path)
+        : mIn(in), mSize(size), mPath(path) {}
+
+    template <typename T>
+    T pod()
+    {
+        T value;
+        bytes(reinterpret_cast<char*>(&value), sizeof(T));
+        return value;
+    }
+    std::string string()
+    {
+        const std::uint32_t length = pod<std::uint32_t>();
+        need(length);
+        std::string s(length, '\0');
+        bytes(s.data(), length);
+        return s;
+    }
+    void skip(std::uint64_t n) { need(n); seek(mPos + n); }
+    void seek(std::uint64_t pos)
+    {
+        mPos = pos;
+        mIn.seekg(std::streamoff(pos));
+    }
+    void fail(const std::string& what) const
+    {
+        throw InputError("'" + mPath + "' is truncated or corrupt: " + what + " (file has "
+            + std::to_string(mSize) + " bytes)");
+    }
+
+private:
+    void need(std::uint64_t n) const { if (n > mSize - mPos) fail("header runs past the end"); }
+    void bytes(char* out, std::uint64_t n)
+    {
+        need(n);
+        mIn.read(out, std::streamsize(n));
+        mPos += n;
+    }
+    std::ifstream& mIn;
+    std::uint64_t mSize, mPos = 0;
+    const std::string& mPath;
+};
+
+void checkVdbLayout(const std::string& path, std::uint64_t size)
+{
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError("cannot open '" + path + "'");
+    BoundedReader r(in, size, path);
+    if (r.pod<std::int64_t>() != openvdb::OPENVDB_MAGIC) {
+        throw InputError("'" + path + "' is not a VDB file (bad magic number)");
+    }
+    const std::uint32_t version = r.pod<std::uint32_t>();
+    if (version < openvdb::OPENVDB_FILE_VERSION_BOOST_UUID || version > openvdb::OPENVDB_FILE_VERSION) {
+        return; // outside what the walk below knows; OpenVDB decides
+    }
+    r.skip(8);                                  // library major, minor
+    const bool hasOffsets = r.pod<char>() != 0;
+    r.skip(36);                                 // UUID
+    for (std::int32_t i = 0, n = r.pod<std::int32_t>(); i < n; ++i) { // file metadata
+        r.string();
+        r.string();
+        r.skip(r.pod<std::uint32_t>());
+    }
+    if (!hasOffsets) return;
+    const std::int32_t grids = r.pod<std::int32_t>();
+    if (grids < 0) r.fail("negative grid count");
+    for (std::int32_t i = 0; i < grids; ++i) {
+        const std::string name = r.string();
+        r.string();                             // type
+        r.string();                             // instance parent
+        const auto gridPos = r.pod<std::int64_t>(), blockPos = r.pod<std::int64_t>(),
+                   endPos = r.pod<std::int64_t>();
+        if (!(0 < gridPos && gridPos <= blockPos && blockPos <= endPos)) r.fail("bad offsets of a grid");
+        if (std::uint64_t(endPos) > size) {
+            r.fail("grid '" + openvdb::io::GridDescriptor::nameAsString(name) + "' ends at byte "
+                + std::to_string(endPos));
+        }
+        r.seek(std::uint64_t(endPos)); // the next descriptor follows this grid
+    }
+}
+
+std::string describeGrids(const openvdb::GridPtrVec& grids)
+{
+    std::string list;
+    for (const auto& grid : grids) {
+        list += (list.empty() ? "" : ", ") + grid->getName() + " (" + grid->valueType() + ")";
+    }
+    return list.empty() ? "none" : list;
+}
+
+LoadedVolume loadVdb(const VolumeRequest& request)
+{
+    const std::string& path = request.input;
+    checkVdbLayout(path, fileSize(path));
+    LoadedVolume volume;
+    try {
+        openvdb::io::File file(path);
+        file.open(/*delayLoad=*/false);
+        const openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
+        std::string chosen;
+        for (const auto& meta : *metas) {
+            const bool scalar = meta->isType<openvdb::FloatGrid>() || meta->isType<openvdb::DoubleGrid>();
+            if (request.gridName.empty() ? scalar : meta->getName() == request.gridName) {
+                if (!scalar) {
+                    throw InputError("grid '" + meta->getName() + "' in '" + path + "' is "
+                        + meta->valueType() + ", not a float scalar grid; grids found: "
+                        + describeGrids(*metas));
+                }
+                chosen = meta->getName();
+                break;
+            }
+        }
+        if (chosen.empty()) {
+            throw InputError("'" + path + "' has no float grid"
+                + (request.gridName.empty() ? "" : " named '" + request.gridName + "'")
+                + "; grids found: " + describeGrids(*metas));
+        }
+        openvdb::GridBase::Ptr base = file.readGrid(chosen);
+        file.close();
+        if (auto doubles = openvdb::gridPtrCast<openvdb::DoubleGrid>(base)) {
+            volume.grid = openvdb::FloatGrid::create(
+                std::make_shared<openvdb::FloatTree>(doubles->tree()));
+            volume.grid->setTransform(doubles->transform().copy());
+            volume.grid->setGridClass(doubles->getGridClass());
+            volume.grid->setName(doubles->getName());
+        } else {
+            volume.grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+        }
+    } catch (const openvdb::Exception& e) {
+        throw InputError("cannot read '" + path + "': " + e.what());
+    }
+    const bool levelSet = volume.grid->getGridClass() == openvdb::GRID_LEVEL_SET;
+    if (request.isovalue) {
+        volume.isovalue = *request.isovalue;
+        volume.isovalueSource = "given";
+    } else if (levelSet) {
+        volume.isovalue = 0.0f;
+        volume.isovalueSource = "level set";
+    } else {
+        volume.isovalue = float(otsuOfGrid(*volume.grid));
+        volume.isovalueSource = "Otsu (starting value)";
+    }
+    volume.description = fs::path(path).filename().string() + ": grid '" + volume.grid->getName()
+        + "' (" + openvdb::GridBase::gridClassToString(volume.grid->getGridClass()) + "), "
+        + std::to_string(volume.grid->activeVoxelCount()) + " active voxels, voxel size "
+        + fmt(volume.grid->voxelSize()[0]);
+    return volume;
+}
+
+
+} // namespace sources_internal
+
+} // namespace isouq
