@@ -28,6 +28,7 @@ import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
 import ply_io  # noqa: E402
 
 MAX_BARS = 48
+BARS = ("err_est", "d_lc", "d_lw")  # C5 (paper sec. 4.3): e and two method distances
 BELOW, ABOVE = "#3b6fb6", "#e8743b"
 
 
@@ -98,7 +99,7 @@ def draw_cdf(mesh, summary, path):
 
 
 def draw_bars(mesh, summary, path):
-    """C5: err_est, d_lc and d_lw of the vertices in the box, vertex by vertex."""
+    """C5: the BARS columns of the vertices in the box, vertex by vertex."""
     in_box = column(mesh, "in_box")
     fig, ax = plt.subplots(figsize=(11, 4))
     if in_box is None or not np.any(in_box):
@@ -107,14 +108,14 @@ def draw_bars(mesh, summary, path):
         save(fig, path)
         return
     index = np.flatnonzero(in_box)
-    est = column(mesh, "err_est")
+    est = column(mesh, BARS[0])
     shown = index
     note = ""
     if index.size > MAX_BARS:
         order = np.argsort(-np.nan_to_num(est[index], nan=-1.0), kind="stable")
         shown = np.sort(index[order[:MAX_BARS]])
-        note = f" (the {MAX_BARS} largest err_est of {index.size})"
-    names = [n for n in ("err_est", "d_lc", "d_lw") if column(mesh, n) is not None]
+        note = f" (the {MAX_BARS} largest {BARS[0]} of {index.size})"
+    names = [n for n in BARS if column(mesh, n) is not None]
     width = 0.8 / max(len(names), 1)
     x = np.arange(shown.size)
     for j, name in enumerate(names):
