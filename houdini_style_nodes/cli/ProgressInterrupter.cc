@@ -1,5 +1,7 @@
 #include "ProgressInterrupter.h"
 
+#include <isouq/MeshIO.h>
+
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -9,28 +11,37 @@ namespace isouq::cli {
 namespace {
 
 std::atomic<bool> sInterrupted{false};
+std::atomic<int> sSignal{SIGINT};
 std::mutex sDrawMutex;
+constexpr int kSignals[] = {SIGINT, SIGTERM, SIGHUP};
 
-extern "C" void onSigint(int)
+extern "C" void onSignal(int signal)
 {
-    // A second Ctrl-C while the first is being honoured ends the process at once.
-    if (sInterrupted.exchange(true)) std::_Exit(130);
+    // The first signal cancels (the run unwinds and removes its temporaries); a second one while
+    // the first is being honoured ends the process at once, without leaving a temporary.
+    if (sInterrupted.exchange(true)) {
+        removeTemporaryFiles();
+        std::_Exit(128 + sSignal.load());
+    }
+    sSignal.store(signal);
 }
 
 } // namespace
 
 ProgressInterrupter::ProgressInterrupter(bool show) : mShow(show)
 {
-    std::signal(SIGINT, onSigint);
+    for (int signal : kSignals) std::signal(signal, onSignal);
 }
 
 ProgressInterrupter::~ProgressInterrupter()
 {
     clearLine();
-    std::signal(SIGINT, SIG_DFL);
+    for (int signal : kSignals) std::signal(signal, SIG_DFL);
 }
 
 bool ProgressInterrupter::interrupted() { return sInterrupted.load(); }
+
+int ProgressInterrupter::exitStatus() { return 128 + sSignal.load(); }
 
 void ProgressInterrupter::start(const char* name)
 {

@@ -1,5 +1,6 @@
 // isouq CLI: an OpenVDB interrupter that draws a progress bar with stage names on a terminal
-// and turns Ctrl-C into a cancellation (HoudiniInterrupter-style; STYLE "Interrupters").
+// and turns Ctrl-C, SIGTERM and SIGHUP into a cancellation (HoudiniInterrupter-style; STYLE
+// "Interrupters"; SPEC §10 "Errors"): the run stops, writes nothing and exits 128 + signal.
 #pragma once
 
 #include <openvdb/util/NullInterrupter.h>
@@ -11,7 +12,8 @@ namespace isouq::cli {
 
 class ProgressInterrupter final : public openvdb::util::NullInterrupter {
 public:
-    /// @a show: draw the bar (a terminal and not --quiet). Installs the SIGINT handler.
+    /// @a show: draw the bar (a terminal and not --quiet). Installs the SIGINT, SIGTERM and
+    /// SIGHUP handlers; a second signal removes the temporary files and ends the process.
     explicit ProgressInterrupter(bool show);
     ~ProgressInterrupter() override;
 
@@ -19,8 +21,10 @@ public:
     void end() override;
     bool wasInterrupted(int percent = -1) override;
 
-    /// True once Ctrl-C was pressed (also outside any stage).
+    /// True once a signal arrived (also outside any stage).
     static bool interrupted();
+    /// The exit status for it: 128 + the signal (130 for Ctrl-C).
+    static int exitStatus();
 
 private:
     void draw(int percent);

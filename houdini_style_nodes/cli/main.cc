@@ -25,7 +25,6 @@ namespace {
 using isouq::nodes::MeshGraphRequest;
 
 constexpr int kExitBadInput = 2;
-constexpr int kExitInterrupted = 130;
 
 const char* const kMeshExamples = R"(
 Examples:
@@ -55,6 +54,30 @@ file is written: a failed or interrupted run writes nothing.
 )";
 
 bool stderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
+
+/// An error message as one line of bounded length (SPEC §10 "Errors"): control characters in
+/// the user strings it echoes (names, paths, formulas) are escaped, and it stops after 1000
+/// characters, saying how many it left out.
+std::string oneLine(const std::string& message)
+{
+    constexpr std::size_t kMax = 1000;
+    std::string out;
+    for (std::size_t i = 0; i < message.size(); ++i) {
+        if (out.size() >= kMax) return out + "... (" + std::to_string(message.size() - i) + " more characters)";
+        const unsigned char c = static_cast<unsigned char>(message[i]);
+        if (c == '\n') out += "\\n";
+        else if (c == '\r') out += "\\r";
+        else if (c == '\t') out += "\\t";
+        else if (c < 0x20 || c == 0x7f) {
+            char hex[8];
+            std::snprintf(hex, sizeof(hex), "\\x%02x", c);
+            out += hex;
+        } else out += char(c);
+    }
+    return out;
+}
+
+void printError(const std::string& message) { std::fprintf(stderr, "isouq: error: %s\n", oneLine(message).c_str()); }
 
 void printNotes(const std::vector<std::string>& notes, bool quiet)
 {
@@ -196,10 +219,10 @@ int main(int argc, char** argv)
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
     } catch (const CLI::RuntimeError& e) {
-        std::fprintf(stderr, "isouq: error: %s\n", e.what());
+        printError(e.what());
         return e.get_exit_code();
     } catch (const CLI::ParseError& e) {
-        std::fprintf(stderr, "isouq: error: %s (see 'isouq --help')\n", e.what());
+        printError(std::string(e.what()) + " (see 'isouq --help')");
         return kExitBadInput;
     }
 
@@ -227,19 +250,19 @@ int main(int argc, char** argv)
         return validateStatus;
     } catch (const isouq::InterruptedError&) {
         std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
-        return kExitInterrupted;
+        return isouq::cli::ProgressInterrupter::exitStatus();
     } catch (const std::filesystem::filesystem_error& e) {
-        std::fprintf(stderr, "isouq: error: %s\n", e.what());
+        printError(e.what());
         return kExitBadInput;
     } catch (const openvdb::Exception& e) {
-        std::fprintf(stderr, "isouq: error: %s\n", e.what());
+        printError(e.what());
         return kExitBadInput;
     } catch (const std::exception& e) {
         if (isouq::cli::ProgressInterrupter::interrupted()) {
             std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
-            return kExitInterrupted;
+            return isouq::cli::ProgressInterrupter::exitStatus();
         }
-        std::fprintf(stderr, "isouq: error: %s\n", e.what());
+        printError(e.what());
         return kExitBadInput;
     }
     return 0;

@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <regex>
 #include <set>
 
@@ -59,9 +60,17 @@ ParmValues evaluateParms(const nlohmann::json& given, const std::string& id, con
         nlohmann::json v = given.contains(spec.token) ? given[spec.token] : spec.defaultValue;
         if (v.is_string() && (spec.type == ParmType::String || spec.type == ParmType::Path))
             v = expand(v.get<std::string>(), id, &type, spec.token);
+        if (v.is_string() && v.get<std::string>().find('\0') != std::string::npos)
+            fail(id, &type, "parameter '" + spec.token + "': contains a NUL character");
         if (spec.type == ParmType::Path && v.is_string()) {
             fs::path p(v.get<std::string>());
-            if (p.is_relative() && !options.outputDir.empty()) p = fs::path(options.outputDir) / p;
+            // With an output folder, relative outputs stay inside it (absolute ones are explicit).
+            if (p.is_relative() && !options.outputDir.empty()) {
+                if (const fs::path inside = p.lexically_normal(); !inside.empty() && *inside.begin() == "..")
+                    fail(id, &type, "parameter '" + spec.token + "': " + p.string() +
+                        " leaves the output folder " + options.outputDir + " (give an absolute path to write elsewhere)");
+                p = fs::path(options.outputDir) / p;
+            }
             v = p.lexically_normal().string();
         }
         values[spec.token] = v;
@@ -193,28 +202,64 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
         for (auto& [port, src] : graph.nodes.back().inputs) src.first = position[src.first];
     }
 
-    // Two writers of one file.
+    // Two writers of one file, or a writer of a file that a node reads. Paths are resolved
+    // (symlinks, "..", "./"), so two spellings of one file are one file.
+    auto resolved = [](const std::string& p) {
+        std::error_code ec;
+        const fs::path r = fs::weakly_canonical(fs::absolute(p), ec);
+        return ec ? fs::absolute(p).lexically_normal().string() : r.string();
+    };
+    std::map<std::string, std::string> inputFiles;
+    for (const GraphNode& n : graph.nodes)
+        for (const ParmSpec& spec : n.type->parms) {
+            std::error_code ec;
+            if (spec.type == ParmType::String && n.parms.isSet(spec.token) &&
+                fs::is_regular_file(n.parms.getString(spec.token), ec))
+                inputFiles.emplace(resolved(n.parms.getString(spec.token)), n.id);
+        }
     std::map<std::string, std::string> writers;
     for (const GraphNode& n : graph.nodes)
         for (const ParmSpec& spec : n.type->parms)
             if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) {
-                // Resolved (symlinks, "..", "./"), so two spellings of one file are one file.
-                const std::string path = fs::weakly_canonical(fs::absolute(n.parms.getString(spec.token))).string();
+                const std::string given = n.parms.getString(spec.token), path = resolved(given);
+                if (auto in = inputFiles.find(path); in != inputFiles.end())
+                    fail(n.id, n.type, "parameter '" + spec.token + "': " + given + " is the input of node '" +
+                        in->second + "'; refusing to overwrite an input");
                 auto [it, fresh] = writers.emplace(path, n.id);
                 if (!fresh)
-                    fail(n.id, n.type, "parameter '" + spec.token + "': " + n.parms.getString(spec.token) +
-                        " is also written by node '" + it->second + "'");
+                    fail(n.id, n.type, "parameter '" + spec.token + "': " + given + " is also written by node '" +
+                        it->second + "'");
             }
     return graph;
 }
 
 Graph loadGraph(const std::string& path, const GraphOptions& options)
 {
-    std::ifstream in(path);
+    // A regular file of bounded size (never block on a FIFO or a device), nested at most
+    // kMaxDepth deep (the JSON library recurses on nesting).
+    constexpr std::uintmax_t kMaxBytes = 64u << 20;
+    constexpr int kMaxDepth = 256;
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec)) throw GraphError("cannot read " + path + ": not a regular file");
+    if (fs::file_size(path, ec) > kMaxBytes) throw GraphError(path + ": larger than 64 MiB, not a graph");
+    std::ifstream in(path, std::ios::binary);
     if (!in) throw GraphError("cannot read " + path);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    int depth = 0;
+    bool inString = false;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        const char c = text[i];
+        if (inString) {
+            if (c == '\\') ++i;
+            else if (c == '"') inString = false;
+        } else if (c == '"') inString = true;
+        else if ((c == '[' || c == '{') && ++depth > kMaxDepth)
+            throw GraphError(path + ": nested deeper than " + std::to_string(kMaxDepth) + " levels, not a graph");
+        else if (c == ']' || c == '}') --depth;
+    }
     nlohmann::json doc;
     try {
-        doc = nlohmann::json::parse(in);
+        doc = nlohmann::json::parse(text);
     } catch (const nlohmann::json::parse_error& e) {
         throw GraphError(path + ": not valid JSON: " + e.what());
     }

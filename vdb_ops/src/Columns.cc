@@ -81,42 +81,26 @@ std::vector<std::string> measureColumns()
     return names;
 }
 
-std::string_view columnSuffix(EdgeMethod m)
-{
-    return tColumn(m).substr(2); // t_<suffix>
-}
+namespace {
 
-std::string_view tColumn(EdgeMethod m)
-{
-    switch (m) {
-    case EdgeMethod::Linear: return col::kTLinear;
-    case EdgeMethod::Cubic: return col::kTCubic;
-    case EdgeMethod::Weno: return col::kTWeno;
-    case EdgeMethod::WenoPaper: return col::kTWenoPaper;
-    }
-    return col::kTLinear;
-}
+/// Per method (EdgeMethod order): t_<m>, err_true_<m>, dist_true_<m>.
+struct MethodColumns {
+    std::string_view t, errTrue, distTrue;
+};
+constexpr MethodColumns kMethodColumns[] = {
+    {col::kTLinear, col::kErrTrueLinear, col::kDistTrueLinear},
+    {col::kTCubic, col::kErrTrueCubic, col::kDistTrueCubic},
+    {col::kTWeno, col::kErrTrueWeno, col::kDistTrueWeno},
+    {col::kTWenoPaper, col::kErrTrueWenoPaper, col::kDistTrueWenoPaper},
+};
 
-std::string_view errTrueColumn(EdgeMethod m)
-{
-    switch (m) {
-    case EdgeMethod::Linear: return col::kErrTrueLinear;
-    case EdgeMethod::Cubic: return col::kErrTrueCubic;
-    case EdgeMethod::Weno: return col::kErrTrueWeno;
-    case EdgeMethod::WenoPaper: return col::kErrTrueWenoPaper;
-    }
-    return col::kErrTrueLinear;
-}
+const MethodColumns& methodColumns(EdgeMethod m) { return kMethodColumns[static_cast<int>(m)]; }
 
-std::string_view distTrueColumn(EdgeMethod m)
-{
-    switch (m) {
-    case EdgeMethod::Linear: return col::kDistTrueLinear;
-    case EdgeMethod::Cubic: return col::kDistTrueCubic;
-    case EdgeMethod::Weno: return col::kDistTrueWeno;
-    case EdgeMethod::WenoPaper: return col::kDistTrueWenoPaper;
-    }
-    return col::kDistTrueLinear;
-}
+} // namespace
+
+std::string_view columnSuffix(EdgeMethod m) { return methodColumns(m).t.substr(2); } // t_<suffix>
+std::string_view tColumn(EdgeMethod m) { return methodColumns(m).t; }
+std::string_view errTrueColumn(EdgeMethod m) { return methodColumns(m).errTrue; }
+std::string_view distTrueColumn(EdgeMethod m) { return methodColumns(m).distTrue; }
 
 } // namespace isouq

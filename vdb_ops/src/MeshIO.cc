@@ -7,8 +7,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <charconv>
+#include <climits>
+#include <iterator>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -24,8 +27,38 @@ namespace meshio_internal {
 // Atomic writing
 // ---------------------------------------------------------------------------------------
 
-/// A file written under the temporary name `.<name>.tmp-<pid>` next to the target and renamed
-/// onto it by commit(). Destroyed without commit, it removes the temporary file.
+/// The temporary files alive in this process, for removeTemporaryFiles() from a signal handler:
+/// fixed slots claimed and released with atomics, so the handler neither allocates nor locks.
+struct TempSlot {
+    std::atomic<bool> used{false}, ready{false};
+    char name[PATH_MAX];
+};
+TempSlot sTempSlots[64];
+std::atomic<unsigned> sTempCounter{0};
+
+int claimTempSlot(const std::string& path)
+{
+    if (path.size() >= PATH_MAX) return -1;
+    for (int i = 0; i < int(std::size(sTempSlots)); ++i) {
+        bool expected = false;
+        if (!sTempSlots[i].used.compare_exchange_strong(expected, true)) continue;
+        std::memcpy(sTempSlots[i].name, path.c_str(), path.size() + 1);
+        sTempSlots[i].ready.store(true);
+        return i;
+    }
+    return -1; // more than 64 at once: still removed by the destructor, not by a signal
+}
+
+void releaseTempSlot(int slot)
+{
+    if (slot < 0) return;
+    sTempSlots[slot].ready.store(false);
+    sTempSlots[slot].used.store(false);
+}
+
+/// A file written under a short temporary name `.isouq-<pid>-<n>.tmp` next to the target (any
+/// legal target name fits) and renamed onto it by commit(). Destroyed without commit, it
+/// removes the temporary file.
 class AtomicFile {
 public:
     explicit AtomicFile(const std::string& path) : mPath(path)
@@ -39,9 +72,14 @@ public:
             if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
             if (::access(mPath.c_str(), W_OK) != 0) fail(std::strerror(errno));
         }
-        const std::string temp = dir + "." + name + ".tmp-" + std::to_string(::getpid());
-        mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0666);
-        if (mFd < 0) fail(std::strerror(errno));
+        const std::string temp = dir + ".isouq-" + std::to_string(::getpid()) + "-" +
+            std::to_string(sTempCounter.fetch_add(1)) + ".tmp";
+        mSlot = claimTempSlot(temp);
+        mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0666);
+        if (mFd < 0) {
+            releaseTempSlot(mSlot);
+            fail(std::strerror(errno));
+        }
         mTemp = temp;
     }
     AtomicFile(const AtomicFile&) = delete;
@@ -50,6 +88,7 @@ public:
     {
         if (mFd >= 0) ::close(mFd);
         if (!mTemp.empty()) ::unlink(mTemp.c_str());
+        releaseTempSlot(mSlot);
     }
 
     void write(const char* data, std::size_t size)
@@ -72,6 +111,8 @@ public:
         if (::close(fd) != 0) fail(std::strerror(errno));
         if (::rename(mTemp.c_str(), mPath.c_str()) != 0) fail(std::strerror(errno));
         mTemp.clear();
+        releaseTempSlot(mSlot);
+        mSlot = -1;
     }
 
     [[noreturn]] void fail(const std::string& reason) const
@@ -82,6 +123,7 @@ public:
 private:
     std::string mPath, mTemp;
     int mFd = -1;
+    int mSlot = -1;
 };
 
 // ---------------------------------------------------------------------------------------
@@ -604,6 +646,12 @@ private:
 };
 
 } // namespace meshio_internal
+
+void removeTemporaryFiles() noexcept
+{
+    for (auto& slot : meshio_internal::sTempSlots)
+        if (slot.ready.load()) ::unlink(slot.name);
+}
 
 namespace meshio_internal {
 void writePlyTo(AtomicFile& file, const Mesh& mesh, const PlyOptions& options)

@@ -76,6 +76,10 @@ private:
     std::unique_ptr<Impl> mImpl;
 };
 
+/// Removes every temporary file this process is writing (async-signal-safe: for a handler of
+/// a second Ctrl-C, SIGTERM or SIGHUP that must end the process at once).
+void removeTemporaryFiles() noexcept;
+
 /// Writes @a text to @a path atomically (e.g. the `--summary` JSON).
 /// @throw IoError naming the path and the reason.
 void writeTextFileAtomic(const std::string& path, const std::string& text);

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Installs isouq to a temporary prefix, moves the prefix, removes nothing else, and runs a graph
+# with a report node from there: the installed binary finds its report script and PLY reader
+# beside itself (Resources.h), not in the source or build tree.
+# Usage: moved_prefix.sh BUILD_DIR GRAPH.json
+set -euo pipefail
+build=$1 graph=$2
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+cmake --install "$build" --prefix "$work/first" > /dev/null
+mv "$work/first" "$work/moved"
+if grep -rlF -e "$build" -e "$(cd "$(dirname "$graph")/.." && pwd)" "$work/moved/bin" "$work/moved/share"; then
+  echo "FAIL: the installed files above name the build or source tree"; exit 1
+fi
+mkdir "$work/run"
+cp "$graph" "$work/run/graph.json"
+cd "$work/run"
+env -u ISOUQ_REPORT_SCRIPT "$work/moved/bin/isouq" run graph.json --quiet
+for png in $(find . -name '*.png'); do echo "report picture: $png"; done
+test -n "$(find . -name '*.png')" || { echo "FAIL: the report wrote no picture"; exit 1; }
+echo "moved prefix: OK"
