@@ -46,7 +46,7 @@ void cookThreshold(CookContext& ctx)
 {
     const ParmValues& p = ctx.parms;
     const std::string measure = p.getString("measure");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     // Add the column before taking references: adding may move the others.
     std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>(col::kAbove, out->mesh.vertexCount());
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
@@ -88,7 +88,7 @@ void cookBoxSelect(CookContext& ctx)
 {
     const auto c = ctx.parms.getVec3("center");
     const auto s = ctx.parms.getVec3("size");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const std::vector<openvdb::Vec3s>& pos = out->mesh.positions;
     std::vector<std::uint8_t>& in = out->mesh.vertexAttributes.add<std::uint8_t>(col::kInBox, pos.size());
     std::size_t count = 0;
@@ -141,7 +141,7 @@ void cookMethodBlend(CookContext& ctx)
     const ParmValues& p = ctx.parms;
     const std::string selection = p.getString("selection");
     const std::string inside = p.getString("inside"), outside = p.getString("outside");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const auto* selected = out->mesh.vertexAttributes.find<std::uint8_t>(selection);
     if (!selected)
         throw std::invalid_argument("parameter 'selection': input 'mesh' has no per-vertex '" + selection +
@@ -189,7 +189,7 @@ struct EdgeKeyHash {
 /// the distance to its vertex on the same source edge (NaN when it has none).
 void cookCompare(CookContext& ctx)
 {
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const std::size_t n = out->mesh.vertexCount();
     std::vector<float> dist(n, kNaN);
     const EdgePlacer place = EdgePlacer::of(*out);

@@ -102,7 +102,7 @@ void cookMesh(CookContext& ctx)
 void cookErrorEstimate(CookContext& ctx)
 {
     const LoadedVolume& volume = inputVolume(ctx);
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     AttributeTable& a = out->mesh.vertexAttributes;
     const std::size_t n = out->mesh.vertexCount();
     // Add the columns before taking references: adding may move the others.
@@ -175,7 +175,7 @@ void cookHiddenFeatures(CookContext& ctx)
         ctx.warn("a dense source read with keep=crossing may miss hidden features far from crossings; "
                  "read it with keep=crossing_or_hidden");
     HiddenFeatureStats stats;
-    auto out = std::make_shared<MeshData>(standard);
+    auto out = std::make_shared<MeshData>(standard.withoutMesh());
     out->mesh = addHiddenFeatures(*volume.grid, standard.mesh, settingsOf(standard), hidden, &stats, ctx.interrupter);
     const MeshTopologyStats before = measureTopology(standard.mesh), after = measureTopology(out->mesh);
     out->info["hidden"] = {{"cells_flagged", stats.cellsFlagged}, {"cells_total", stats.cellsTotal},
@@ -191,7 +191,7 @@ void cookTruth(CookContext& ctx)
 {
     const LoadedVolume& volume = inputVolume(ctx);
     if (!volume.truth) throw std::invalid_argument("input 'volume' has no exact field (only field: and formula: inputs do)");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     TruthSettings settings;
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
     const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);

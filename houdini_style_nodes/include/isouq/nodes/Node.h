@@ -31,6 +31,9 @@ struct MeshData {
     std::string method;    ///< method of the positions ("linear", "weno", "blend", ...)
     bool uncertainty = false; ///< meshed with every method and estimate (MeshSettings)
     nlohmann::json info = nlohmann::json::object(); ///< e.g. "hidden", "threshold", "box" blocks
+
+    /// Everything but the mesh, for a node that makes a new mesh from this one.
+    MeshData withoutMesh() const { return {Mesh(), isovalue, method, uncertainty, info}; }
 };
 
 /// The value on one port: which member is set follows the port's type.
@@ -61,6 +64,9 @@ struct CookContext {
     std::function<nlohmann::json()> upstreamTimings;
     /// The files that mesh writers (NodeType::meshWriter) make of what input @a port reads.
     std::function<std::vector<std::string>(const std::string& port)> destinations;
+    /// The mesh on input @a port for this node to change and output: the upstream value itself
+    /// when no later node and no pending write needs it (no copy), else a copy.
+    std::function<std::shared_ptr<MeshData>(const std::string& port)> takeMesh;
 
     const NodeValue* input(const std::string& name) const
     {
