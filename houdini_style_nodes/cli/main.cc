@@ -116,7 +116,8 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     const isouq::nodes::Graph graph = isouq::nodes::parseGraph(doc);
     if (!saveGraph.empty()) {
         for (const std::string& out : {request.output, request.hiddenOutput, request.summaryPath})
-            if (!out.empty() && std::filesystem::weakly_canonical(out) == std::filesystem::weakly_canonical(saveGraph))
+            if (!out.empty() && std::filesystem::weakly_canonical(std::filesystem::absolute(out)) ==
+                                    std::filesystem::weakly_canonical(std::filesystem::absolute(saveGraph)))
                 throw isouq::InputError("--save-graph " + saveGraph + " is also an output; give it its own path");
         isouq::checkWritable(saveGraph);
     }

@@ -117,6 +117,7 @@ LoadedVolume loadVdb(const VolumeRequest& request)
         file.open(/*delayLoad=*/false);
         const openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
         std::string chosen;
+        bool found = false; // a grid may be unnamed ("")
         for (const auto& meta : *metas) {
             const bool scalar = meta->isType<openvdb::FloatGrid>() || meta->isType<openvdb::DoubleGrid>();
             if (request.gridName.empty() ? scalar : meta->getName() == request.gridName) {
@@ -126,10 +127,11 @@ LoadedVolume loadVdb(const VolumeRequest& request)
                         + describeGrids(*metas));
                 }
                 chosen = meta->getName();
+                found = true;
                 break;
             }
         }
-        if (chosen.empty()) {
+        if (!found) {
             throw InputError("'" + path + "' has no float grid"
                 + (request.gridName.empty() ? "" : " named '" + request.gridName + "'")
                 + "; grids found: " + describeGrids(*metas));
