@@ -1,5 +1,7 @@
 # Runs `isouq mesh` (SPEC §8) in a subprocess: finds the binary, builds the command line, polls
-# progress, cancels. No bpy, so the operator (modal timer) and the tests share it.
+# progress, cancels. No bpy, so the operator (modal timer) and the tests share it. A frame
+# sequence (SPEC §10: an input with ####) runs as one `isouq mesh` over every frame
+# (SequenceJob), writing its frames into a folder that stays.
 
 import json
 import os
@@ -12,6 +14,7 @@ from dataclasses import dataclass, field
 
 ENV_BINARY = "ISOUQ_CLI"
 _PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
+_FRAMES_DONE = re.compile(rb"frame\s+(\d+)\s*(?:/|of)\s*(\d+)", re.IGNORECASE)
 _T_COLUMN = re.compile(r"^t_(\w+)$")
 _READ_ERRORS = (OSError, RuntimeError, KeyError, TypeError, ValueError, subprocess.TimeoutExpired)
 
@@ -163,6 +166,9 @@ class MeshRequest:
     grid: str = ""
     threads: int = 0
     resolution: int = 0
+    frames: str = ""                # sequences: --frames A-B[:STEP]; "" every frame on disk
+    resume: bool = False            # sequences: --resume
+    skip_missing: bool = False      # sequences: --skip-missing
 
     def command(self, binary, out, summary, hidden_out=None):
         cmd = [binary, "mesh", self.input, "-o", out]
@@ -181,6 +187,12 @@ class MeshRequest:
             cmd += ["--resolution", str(self.resolution)]
         if self.threads > 0:
             cmd += ["--threads", str(self.threads)]
+        if self.frames:
+            cmd += ["--frames", self.frames]
+        if self.resume:
+            cmd += ["--resume"]
+        if self.skip_missing:
+            cmd += ["--skip-missing"]
         return cmd
 
 
@@ -228,6 +240,11 @@ class Job:
         found = _PERCENT.findall(tail)
         return min(float(found[-1]) / 100.0, 1.0) if found else None
 
+    def frames_done(self):
+        """(frames finished, frames in the run) from the CLI's "frame i/N" progress, or None."""
+        found = _FRAMES_DONE.findall(self._stderr_tail(4096))
+        return (int(found[-1][0]), int(found[-1][1])) if found else None
+
     def cancel(self, grace=3.0):
         """SIGINT (the CLI exits 130 and leaves no output), then SIGKILL after `grace` s."""
         self.cancelled = True
@@ -261,3 +278,51 @@ class Job:
 
     def cleanup(self):
         shutil.rmtree(self.workdir, ignore_errors=True)
+
+
+def _last_segment(data):
+    """The last progress redraw: the text after the last carriage return or newline."""
+    return re.split(rb"[\r\n]", data.rstrip(b"\r\n"))[-1] if data else b""
+
+
+@dataclass
+class SequenceJob(Job):
+    """`isouq mesh 'in.####.vdb' -o 'DIR/NAME.####.ply' --summary DIR/NAME.json` over a frame
+    sequence. The frames stay in `output_dir` (they are loaded frame by frame later); only the
+    temporary folder holding stderr is removed. `total` is the number of frames expected, for
+    progress before the CLI first says "frame i/N"."""
+    output_dir: str = ""
+    name: str = "sequence"
+    total: int = 0
+    _best: float = 0.0
+
+    @property
+    def mesh_path(self):
+        return os.path.join(self.output_dir, f"{self.name}.####.ply")
+
+    @property
+    def hidden_path(self):
+        return (os.path.join(self.output_dir, f"{self.name}_hidden.####.ply")
+                if self.request.hidden_features else None)
+
+    @property
+    def summary_path(self):
+        return os.path.join(self.output_dir, f"{self.name}.json")
+
+    def start(self):
+        os.makedirs(self.output_dir, exist_ok=True)
+        return super().start()
+
+    def progress(self):
+        """Fraction of the run: (frames finished + the current frame's last percentage) over the
+        frames, never going back (a frame's stages each count from 0 to 100%)."""
+        tail = self._stderr_tail(4096)
+        line = _last_segment(tail)
+        done = _FRAMES_DONE.findall(line) or _FRAMES_DONE.findall(tail)
+        finished, total = (int(done[-1][0]), int(done[-1][1])) if done else (0, self.total)
+        if total <= 0:
+            return None
+        percent = _PERCENT.findall(line)
+        fraction = (finished + (float(percent[-1]) / 100.0 if percent else 0.0)) / total
+        self._best = max(self._best, min(fraction, 1.0))
+        return self._best
