@@ -8,7 +8,7 @@ packages=(
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
-  python3-openimageio hyperfine
+  python3-openimageio python3-openvdb hyperfine
   blender
 )
 missing=()

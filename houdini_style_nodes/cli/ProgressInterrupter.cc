@@ -41,6 +41,12 @@ ProgressInterrupter::~ProgressInterrupter()
 
 bool ProgressInterrupter::interrupted() { return sInterrupted.load(); }
 
+void ProgressInterrupter::setPrefix(std::string prefix)
+{
+    std::lock_guard<std::mutex> lock(sDrawMutex);
+    mPrefix = std::move(prefix);
+}
+
 int ProgressInterrupter::exitStatus() { return 128 + sSignal.load(); }
 
 void ProgressInterrupter::start(const char* name)
@@ -79,7 +85,7 @@ void ProgressInterrupter::draw(int percent)
     constexpr int kWidth = 30;
     const int filled = kWidth * std::max(0, std::min(percent, 100)) / 100;
     const double seconds = std::chrono::duration<double>(now - mStageStart).count();
-    std::fprintf(stderr, "\r%-10s [%.*s%*s] %3d%% %6.1fs", mStage.c_str(), filled,
+    std::fprintf(stderr, "\r%s%-10s [%.*s%*s] %3d%% %6.1fs", mPrefix.c_str(), mStage.c_str(), filled,
         "##############################", kWidth - filled, "", percent, seconds);
     std::fflush(stderr);
 }
@@ -87,7 +93,7 @@ void ProgressInterrupter::draw(int percent)
 void ProgressInterrupter::clearLine()
 {
     if (!mShow) return;
-    std::fprintf(stderr, "\r%*s\r", 60, "");
+    std::fprintf(stderr, "\r%*s\r", 60 + int(mPrefix.size()), "");
     std::fflush(stderr);
 }
 

@@ -9,11 +9,13 @@
 #include <isouq/MeshIO.h>
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
+#include <isouq/nodes/Sequence.h>
 
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
 #include <tbb/global_control.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -128,6 +130,33 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     return 0;
 }
 
+/// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
+int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
+{
+    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<std::string> warnings;
+    const auto onFrame = [&](std::size_t done, std::size_t total, int frame, const nlohmann::json& e) {
+        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        const double eta = seconds / double(done) * double(total - done);
+        char prefix[96];
+        std::snprintf(prefix, sizeof(prefix), "frame %zu/%zu, ETA %.0f s | ", done, total, eta);
+        progress.setPrefix(prefix);
+        std::printf("frame %d: %s %s: %zu vertices, %zu triangles, %zu components\n", frame,
+            e.value("resumed", false) ? "kept" : "wrote", e["output"].get<std::string>().c_str(),
+            e["vertices"].get<std::size_t>(), e["triangles"].get<std::size_t>(), e["components"].get<std::size_t>());
+        std::fflush(stdout);
+    };
+    const nlohmann::json s = isouq::nodes::runSequence(request, &progress, onFrame, &warnings);
+    printNotes(warnings, quiet);
+    const auto& t = s["totals"];
+    std::printf("%zu frames (%d empty, %d kept from an earlier run): %zu vertices, %zu triangles (isovalue %s)\n",
+        t["frames"].get<std::size_t>(), t["empty"].get<int>(), t["resumed"].get<int>(), t["vertices"].get<std::size_t>(),
+        t["triangles"].get<std::size_t>(), s["isovalue"].dump().c_str());
+    if (!request.frame.summaryPath.empty()) std::printf("wrote %s: sequence summary (JSON)\n", request.frame.summaryPath.c_str());
+    return 0;
+}
+
 int runGraphFile(const std::string& path, const std::string& outDir, bool quiet)
 {
     isouq::nodes::GraphOptions options;
@@ -186,6 +215,14 @@ int main(int argc, char** argv)
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
     mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
+    isouq::nodes::SequenceRequest sequence;
+    auto* frames = mesh->add_option("--frames", sequence.frames,
+        "Sequences (INPUT with #### or %04d): frames A-B or A-B:STEP (default: every frame on disk)");
+    auto* resume = mesh->add_flag("--resume", sequence.resume, "Sequences: keep the frames whose outputs exist");
+    auto* skipMissing = mesh->add_flag("--skip-missing", sequence.skipMissing,
+        "Sequences: mesh the frames that exist instead of refusing a range with missing ones");
+    auto* frameJobs = mesh->add_option("--frame-jobs", sequence.frameJobs,
+        "Sequences: frames meshed at once, each with every thread")->check(CLI::Range(1, 64))->capture_default_str();
     mesh->footer(kMeshExamples);
 
     std::string demoDir = "isouq-demo";
@@ -236,6 +273,14 @@ int main(int argc, char** argv)
         if (*mesh) {
             meshRequest.output = plyParms.at("path");
             meshRequest.summaryPath = summaryParms.value("path", std::string());
+            if (isouq::nodes::parseFramePattern(meshRequest.read.value("input", std::string()))) {
+                if (!saveGraph.empty()) throw isouq::InputError("--save-graph is for one input, not a sequence");
+                sequence.frame = meshRequest;
+                return runSequenceCommand(sequence, quiet);
+            }
+            for (const CLI::Option* o : {frames, resume, skipMissing, frameJobs})
+                if (o->count() > 0)
+                    throw isouq::InputError(o->get_name() + " is for sequences: INPUT needs #### or %04d in its name");
             return runMesh(meshRequest, saveGraph, quiet);
         }
         if (*demo) {

@@ -57,8 +57,14 @@ void cookReadVolume(CookContext& ctx)
     }
     if (p.isSet("isovalue")) request.isovalue = float(p.getFloat("isovalue"));
     request.keep = keepFromString(p.getString("keep"));
+    request.allowEmpty = p.getBool("allow_empty");
 
     auto volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
+    if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
+        ctx.warn(volume->description + ": the grid is empty; an empty mesh");
+        ctx.outputs["volume"].volume = std::move(volume);
+        return;
+    }
     const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
     if (!problem.empty()) throw InputError(problem);
     if (volume->isovalueSource != "given") {
@@ -232,6 +238,9 @@ void addVolumeNodes(std::vector<NodeType>& types)
             menuParm("keep", "Keep Blocks", {"crossing", "crossing_or_hidden", "non_constant", "all"}, "crossing",
                 "Dense sources: which 8^3 blocks stay active (crossing_or_hidden for hidden features; "
                 "non_constant to mesh at other isovalues)"),
+            parm("allow_empty", "Allow Empty", ParmType::Bool, false,
+                "An empty grid (or, with a grid name, an absent one) gives an empty mesh instead of an "
+                "error: frames of a simulation cache (docs/sequences.md)"),
         },
         {}, {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}},
         cookReadVolume});

@@ -131,6 +131,15 @@ LoadedVolume loadVdb(const VolumeRequest& request)
                 break;
             }
         }
+        if (!found && request.allowEmpty && !request.gridName.empty()) {
+            file.close();
+            volume.grid = openvdb::FloatGrid::create(0.0f);
+            volume.grid->setName(request.gridName);
+            volume.isovalue = request.isovalue.value_or(0.0f);
+            volume.isovalueSource = "empty grid";
+            volume.description = fs::path(path).filename().string() + ": no grid '" + request.gridName + "' (empty)";
+            return volume;
+        }
         if (!found) {
             throw InputError("'" + path + "' has no float grid"
                 + (request.gridName.empty() ? "" : " named '" + request.gridName + "'")
@@ -154,6 +163,9 @@ LoadedVolume loadVdb(const VolumeRequest& request)
     if (request.isovalue) {
         volume.isovalue = *request.isovalue;
         volume.isovalueSource = "given";
+    } else if (volume.grid->empty()) {
+        volume.isovalue = 0.0f;
+        volume.isovalueSource = "empty grid";
     } else if (levelSet) {
         volume.isovalue = 0.0f;
         volume.isovalueSource = "level set";

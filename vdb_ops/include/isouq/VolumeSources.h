@@ -50,6 +50,9 @@ struct VolumeRequest {
     std::optional<std::pair<double, double>> domain; ///< --domain LO,HI (formula, default -1,1)
     std::optional<float> isovalue;            ///< --isovalue
     KeepBlocks keep = KeepBlocks::Crossing;   ///< dense sources only
+    /// .vdb: a named grid that is absent gives an empty grid instead of an error (a frame of a
+    /// simulation cache where the grid is empty; SPEC §10 "Sequences").
+    bool allowEmpty = false;
 };
 
 struct LoadedVolume {
