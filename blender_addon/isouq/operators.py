@@ -139,8 +139,9 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             if data.packed_file is not None:
                 raise ValueError(f"volume '{volume.name}' is packed: unpack it to a .vdb file")
             path = bpy.path.abspath(data.grids.frame_filepath or data.filepath)
-            if not grid and data.grids.is_loaded and data.grids.active is not None:
-                grid = data.grids.active.name
+            if not grid:
+                active = active_grid(data)
+                grid = active.name if active is not None else ""
             if data.is_sequence and s.whole_sequence:
                 self._sequence = volume_sequence(volume)
                 path = self._sequence["pattern"]
@@ -227,7 +228,7 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             return {"CANCELLED"}
         for o in created:
             if self._volume is not None:
-                o.matrix_world = self._volume.matrix_world
+                o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
         _make_active(context, obj)
         self.report({"INFO"}, f"{obj.name}: {len(written.frames)} frames in "
                               f"{job.output_dir}")
@@ -249,7 +250,7 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             for o in created:
                 o.isouq.source = job.request.input
                 if self._volume is not None:
-                    o.matrix_world = self._volume.matrix_world
+                    o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
         except _EXPECTED as e:
             for o in created:
                 me = o.data
@@ -450,6 +451,31 @@ class ISOUQ_OT_open_plot(bpy.types.Operator):
         area.type = "IMAGE_EDITOR"
         area.spaces.active.image = image
         return {"FINISHED"}
+
+
+def active_grid(data, name=""):
+    """The Volume data's grid `name`, else its active grid (grids loaded on demand), or None
+    when the file cannot be read. (Blender 3.4's VolumeGrids has active_index, not active.)"""
+    grids = data.grids
+    if not (grids.is_loaded or grids.load()) or not len(grids):
+        return None
+    found = next((g for g in grids if g.name == name), None) if name else None
+    return found or grids[min(max(grids.active_index, 0), len(grids) - 1)]
+
+
+def volume_mesh_matrix(volume, grid_name=""):
+    """Where a mesh of a Volume object's grid goes so that it lies on Blender's own drawing of
+    the Volume: Blender draws voxel (i, j, k) over the cell [i, i+1]^3 of index space (OpenVDB,
+    and so isouq, put the sample at the point (i, j, k)), and its Volume to Mesh modifier shifts
+    its meshes by half a voxel to match (measured: docs/sequences.md). isouq's meshes, in the
+    grid's world space, get the Volume's matrix and the same half-voxel shift."""
+    from mathutils import Matrix, Vector
+    grid = active_grid(volume.data, grid_name)
+    if grid is None:
+        return volume.matrix_world.copy()
+    index_to_object = grid.matrix_object
+    half = index_to_object.to_3x3() @ Vector((0.5, 0.5, 0.5))
+    return volume.matrix_world @ Matrix.Translation(half)
 
 
 def volume_sequence(volume):

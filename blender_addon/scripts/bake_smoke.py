@@ -6,9 +6,10 @@
 #
 # Writes OUT/cache_fluid/data/fluid_data_####.vdb (grids density, heat, velocity, ...; Blender's
 # own names), OUT/smoke.blend (the simulation scene, for reference) and, with --truth, a JSON
-# {"threshold", "resolution", "frames": [{"frame", "file", "vertices", "triangles"}], "bake_s",
-# "volume_to_mesh_s"}: the vertex and triangle counts of Volume to Mesh (resolution mode Grid,
-# adaptivity 0, the threshold given) on a Volume object that loads the cache as a sequence.
+# {"threshold", "resolution", "frames": [{"frame", "file", "vertices", "polygons", "triangles",
+# "bbox_min", "bbox_max"}], "bake_s", "volume_to_mesh_s"}: what Volume to Mesh (resolution mode
+# Grid, adaptivity 0, the threshold given) makes of each frame, on a Volume object that loads the
+# cache as a sequence (object space = the grids' world space; the object is not moved).
 #
 # The emitter (a small sphere of inflow smoke) moves along x and rises over the frames, so each
 # frame differs; the domain is a cube of side 2 with `--resolution` cells on its longest side.
@@ -138,9 +139,12 @@ def volume_to_mesh_counts(scene, files, threshold, frames):
         evaluated = target.evaluated_get(bpy.context.evaluated_depsgraph_get())
         me = evaluated.to_mesh()
         tris = sum(len(p.vertices) - 2 for p in me.polygons)
+        co = [v.co for v in me.vertices]
+        box = ([min(c[i] for c in co) for i in range(3)], [max(c[i] for c in co) for i in range(3)]) \
+            if co else (None, None)
         out.append({"frame": frame, "file": files[frame - 1],
                     "vertices": len(me.vertices), "polygons": len(me.polygons),
-                    "triangles": tris})
+                    "triangles": tris, "bbox_min": box[0], "bbox_max": box[1]})
         evaluated.to_mesh_clear()
     return out
 
