@@ -10,11 +10,54 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 from dataclasses import dataclass, field
 
 ENV_BINARY = "ISOUQ_CLI"
 _PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
 _FRAMES_DONE = re.compile(rb"frame\s+(\d+)\s*(?:/|of)\s*(\d+)", re.IGNORECASE)
+_FRAME_WRITTEN = re.compile(rb"^frame -?\d+: (?:wrote|kept) ", re.MULTILINE)
+
+
+def spawn(cmd, stdout_path, stderr_path):
+    """Starts `cmd` with stdout to a file and stderr on a pseudo-terminal whose output a thread
+    copies to `stderr_path`: the CLI draws its progress bar only on a terminal. Without a pty
+    (not POSIX), stderr goes to the file directly. Returns (process, drain thread or None)."""
+    out = open(stdout_path, "wb")
+    try:
+        try:
+            import pty
+            master, slave = pty.openpty()
+        except (ImportError, OSError):
+            with open(stderr_path, "wb") as err:
+                return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=err), None
+        try:
+            process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=slave)
+        except BaseException:
+            os.close(master)
+            raise
+        finally:
+            os.close(slave)
+    finally:
+        out.close()
+    thread = threading.Thread(target=_drain, args=(master, stderr_path), daemon=True)
+    thread.start()
+    return process, thread
+
+
+def _drain(fd, path):
+    """Copies what the pty gives into `path` until the child closes it (EIO on Linux)."""
+    with open(path, "wb") as f:
+        while True:
+            try:
+                data = os.read(fd, 65536)
+            except OSError:
+                break
+            if not data:
+                break
+            f.write(data)
+            f.flush()
+    os.close(fd)
 _T_COLUMN = re.compile(r"^t_(\w+)$")
 _READ_ERRORS = (OSError, RuntimeError, KeyError, TypeError, ValueError, subprocess.TimeoutExpired)
 
@@ -221,18 +264,31 @@ class Job:
     def _stderr_path(self):
         return os.path.join(self.workdir, "stderr.txt")
 
+    @property
+    def _stdout_path(self):
+        return os.path.join(self.workdir, "stdout.txt")
+
     def start(self):
         cmd = self.request.command(self.binary, self.mesh_path, self.summary_path, self.hidden_path)
-        with open(self._stderr_path, "wb") as err:
-            self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
-                                            stdout=subprocess.DEVNULL, stderr=err)
+        self.process, self._drainer = spawn(cmd, self._stdout_path, self._stderr_path)
         return self
 
     def poll(self):
-        return self.process.poll()
+        """None while running; the exit status once the process ended and its stderr is read."""
+        status = self.process.poll()
+        if status is not None:
+            self._join()
+        return status
 
     def wait(self, timeout=None):
-        return self.process.wait(timeout)
+        status = self.process.wait(timeout)
+        self._join()
+        return status
+
+    def _join(self):
+        drain = getattr(self, "_drainer", None)
+        if drain is not None:
+            drain.join(5.0)
 
     def progress(self):
         """Last percentage the CLI's progress bar printed, in [0, 1], or None."""
@@ -255,6 +311,8 @@ class Job:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+        if self.process:
+            self._join()
 
     def error_message(self):
         """The CLI's `isouq: error:` line, else the last stderr line, else the status."""
@@ -313,16 +371,32 @@ class SequenceJob(Job):
         os.makedirs(self.output_dir, exist_ok=True)
         return super().start()
 
+    def frames_done(self):
+        """(frames finished, frames in the run): from the progress bar's "frame i/N" prefix,
+        else from the "frame F: wrote ..." lines the CLI prints (and flushes) on stdout after
+        each frame, over `total`."""
+        found = super().frames_done()
+        written = self._frames_written()
+        if found is None:
+            return (written, self.total) if written or self.total else None
+        return (max(found[0], written), found[1])
+
+    def _frames_written(self):
+        try:
+            with open(self._stdout_path, "rb") as f:
+                return len(_FRAME_WRITTEN.findall(f.read()))
+        except OSError:
+            return 0
+
     def progress(self):
         """Fraction of the run: (frames finished + the current frame's last percentage) over the
         frames, never going back (a frame's stages each count from 0 to 100%)."""
-        tail = self._stderr_tail(4096)
-        line = _last_segment(tail)
-        done = _FRAMES_DONE.findall(line) or _FRAMES_DONE.findall(tail)
-        finished, total = (int(done[-1][0]), int(done[-1][1])) if done else (0, self.total)
-        if total <= 0:
+        done = self.frames_done()
+        if done is None or done[1] <= 0:
             return None
-        percent = _PERCENT.findall(line)
+        finished, total = done
+        line = _last_segment(self._stderr_tail(4096))
+        percent = _PERCENT.findall(line) if finished < total else []
         fraction = (finished + (float(percent[-1]) / 100.0 if percent else 0.0)) / total
         self._best = max(self._best, min(fraction, 1.0))
         return self._best

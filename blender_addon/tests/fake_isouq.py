@@ -96,6 +96,7 @@ if placeholder(args[1]):
             os.replace(write(f) + ".tmp", write(f))
         if hidden:
             shutil.copy(os.environ.get("FAKE_ISOUQ_HIDDEN_PLY", source), hidden(f))
+        print(f"frame {f}: wrote {write(f)}: 1 vertices, 2 triangles, 1 components", flush=True)
         entries.append({"frame": f, "file": read(f), "output": write(f), "vertices": 1,
                         "triangles": 2, "components": 1, "boundary_edges": 0, "empty": False})
     sys.stderr.write(f"\rframe {len(frames)}/{len(frames)}, ETA 0 s | done\n")

@@ -151,3 +151,23 @@ def test_run_isouq_on_the_volume_sequence(cli, smoke, tmp_path):
         assert_shows_file(obj, str(tmp_path / "smoke" / f"smoke.{k:04d}.ply"))
         co = np.array([obj.matrix_world @ v.co for v in obj.data.vertices])
         assert np.allclose(co.min(0), blender["bbox_min"], atol=VOXEL)
+
+
+def test_progress_of_a_real_sequence_run_counts_frames(cli, smoke, tmp_path):
+    """The CLI draws its bar only on a terminal: the job gives it a pty for stderr, and counts
+    the "frame F: wrote ..." lines it flushes on stdout."""
+    from isouq import pipeline
+    folder, _, _ = smoke
+    request = pipeline.MeshRequest(str(folder / "cache_fluid" / "data" / "fluid_data_####.vdb"),
+                                   THRESHOLD, "weno", True, 4, "density", frames=f"1-{FRAMES}")
+    job = pipeline.SequenceJob(request, cli, output_dir=str(tmp_path), name="p",
+                               total=FRAMES).start()
+    seen = []
+    while job.poll() is None:
+        seen.append(job.progress() or 0.0)
+        time.sleep(0.01)
+    assert job.poll() == 0, job.error_message()
+    assert job.frames_done() == (FRAMES, FRAMES) and job.progress() == 1.0
+    assert seen == sorted(seen)
+    assert frames.parse_pattern(job.hidden_path).scan().frames == list(range(1, FRAMES + 1))
+    job.cleanup()
