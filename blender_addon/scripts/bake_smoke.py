@@ -63,7 +63,7 @@ def make_domain(scene, folder, resolution, frames):
     d.use_adaptive_domain = False
     d.use_noise = False
     d.vorticity = 0.2
-    d.alpha, d.beta = 1.0, 0.5          # density and heat buoyancy
+    d.alpha, d.beta = 0.2, 1.5          # density and heat buoyancy: the smoke rises
     d.use_dissolve_smoke = False
     return domain, d
 
@@ -82,9 +82,9 @@ def make_emitter(scene, frames):
     f.surface_distance = 1.5
     f.density = 1.0
     f.use_initial_velocity = True
-    f.velocity_coord = (0.6, 0.0, 0.4)
-    # the emitter sweeps from left to right and back up, so frames differ in shape
-    for frame, x, z in ((1, -0.5, -0.6), (frames // 2, 0.4, -0.5), (frames, 0.1, -0.1)):
+    f.velocity_coord = (0.25, 0.0, 0.9)
+    # the emitter sweeps from left to right and back, so frames differ in shape
+    for frame, x, z in ((1, -0.45, -0.65), (frames // 2, 0.25, -0.6), (frames, -0.1, -0.45)):
         emitter.location = (x, 0.0, z)
         emitter.keyframe_insert("location", frame=frame)
     emitter.hide_render = True
