@@ -169,6 +169,9 @@ def save(fig, path):
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)                 # as a plain open() would have made it
     try:
         fig.savefig(tmp)
         os.replace(tmp, path)

@@ -171,3 +171,22 @@ def test_progress_of_a_real_sequence_run_counts_frames(cli, smoke, tmp_path):
     assert seen == sorted(seen)
     assert frames.parse_pattern(job.hidden_path).scan().frames == list(range(1, FRAMES + 1))
     job.cleanup()
+
+
+def test_empty_grid_frames_import_as_empty_meshes(cli, smoke, tmp_path):
+    """Mantaflow's `flame` grid of a smoke-only bake is empty on every frame: the CLI writes empty
+    but valid PLYs, and the sequence plays them as empty meshes with their columns."""
+    folder, _, _ = smoke
+    run = subprocess.run([cli, "mesh", str(folder / "cache_fluid" / "data" / "fluid_data_####.vdb"),
+                          "--grid", "flame", "--isovalue", str(THRESHOLD), "--frames", "1-3",
+                          "-o", str(tmp_path / "flame.####.ply"),
+                          "--summary", str(tmp_path / "flame.json"), "--quiet"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert bpy.ops.isouq.import_sequence(filepath=str(tmp_path / "flame.0002.ply")) == {"FINISHED"}
+    obj = bpy.context.active_object
+    for k in (3, 1, 2):
+        bpy.context.scene.frame_set(k)
+        assert obj.isouq.sequence_frame == k and len(obj.data.vertices) == 0
+        assert "err_est" in obj.data.attributes
+        assert json.loads(obj.isouq.summary)["empty"] is True
