@@ -91,6 +91,15 @@ def _update_sequence(self, context):
         sequence.update_object(context.scene, obj, force=True)
 
 
+def _update_pattern(self, context):
+    """A new pattern (or the same one again): its frames are looked up on disk again."""
+    from . import sequence
+    obj = self.id_data
+    if isinstance(obj, bpy.types.Object) and self.sequence:
+        sequence.rescan(obj)
+        sequence.update_object(context.scene, obj, force=True)
+
+
 class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     measure: EnumProperty(name="Measure", items=measure_items, default=number("err_est"))
     # C1 threshold
@@ -171,9 +180,10 @@ class ISOUQ_ObjectSettings(bpy.types.PropertyGroup):
     partner: PointerProperty(name="Partner", type=bpy.types.Object,
                              description="The standard / hidden-feature mesh of the same run")
     # a mesh sequence (sequence.py): the mesh follows the scene frame
-    sequence: StringProperty(name="Sequence", subtype="FILE_PATH", update=_update_sequence,
+    sequence: StringProperty(name="Sequence", subtype="FILE_PATH", update=_update_pattern,
                              description="The frames' files, '#' for the frame number; "
-                                         "empty: not a sequence")
+                                         "empty: not a sequence. Setting it (again) looks the "
+                                         "frames up on disk")
     sequence_offset: IntProperty(name="Frame offset", default=0, update=_update_sequence,
                                  description="File frame = scene frame + offset")
     sequence_mode: EnumProperty(name="Outside the frames", items=SEQUENCE_MODES,

@@ -61,6 +61,25 @@ def sequence_of(obj):
     return seq
 
 
+def rescan(obj):
+    """Looks the frames of `obj`'s pattern up on disk again (frames added or removed since the
+    import); the heat-map ranges are computed again when next asked. Returns the frames."""
+    if _importing:
+        return None
+    seq = frames.parse_pattern(bpy.path.abspath(obj.isouq.sequence))
+    if seq is None:
+        return None
+    try:
+        seq.scan()
+    except frames.SequenceError as e:
+        _warn_once(obj, str(e))
+        return None
+    obj[FRAMES_KEY] = seq.frames
+    if RANGES_KEY in obj and obj.get("isouq_sequence_ranges_from") == "scan":
+        del obj[RANGES_KEY]
+    return seq.frames
+
+
 def summary_document(obj):
     """The sequence summary of `obj` (read once per modification of the file), or None."""
     path = bpy.path.abspath(obj.isouq.sequence_summary) if obj.isouq.sequence_summary else ""

@@ -284,6 +284,21 @@ def test_views_work_on_every_frame(frames_dir, tmp_path):
     assert np.array_equal(co, ply_io.read_ply(frame_path(copy, 5)).positions)
 
 
+def test_setting_the_pattern_again_finds_frames_written_since(frames_dir, tmp_path):
+    copy = tmp_path / "growing"
+    copy.mkdir()
+    for k in range(1, 4):
+        (copy / f"ball.{k:04d}.ply").write_bytes(open(frame_path(frames_dir, k), "rb").read())
+    obj = import_frames(copy)
+    bpy.context.scene.frame_set(6)
+    assert obj.isouq.sequence_frame == 3                    # EXTEND holds the last
+    for k in range(4, 7):                                   # a run still writing frames
+        (copy / f"ball.{k:04d}.ply").write_bytes(open(frame_path(frames_dir, k), "rb").read())
+    obj.isouq.sequence = obj.isouq.sequence
+    assert obj.isouq.sequence_frame == 6
+    assert_shows_file(obj, str(copy / "ball.0006.ply"))
+
+
 def test_bad_files_report_and_create_nothing(tmp_path):
     (tmp_path / "plain.ply").write_bytes(b"ply\n")
     (tmp_path / "broken.0001.ply").write_bytes(b"ply\nformat ascii 1.0\nend_header\n")
