@@ -243,7 +243,8 @@ def import_sequence(context, path, name=None, role="MESH", summary=None, mode="E
     shown = seq.file_frame(context.scene.frame_current if not set_frame_range else
                            _in_range(context.scene.frame_current, seq, offset), offset, mode)
     mesh = CACHE.get(seq.path(shown if shown is not None else seq.first), _read)
-    ranges, ranges_from = sequence_ranges(seq, doc)
+    # the summary's statistics are the standard mesh's: a hidden-feature sequence scans its own
+    ranges, ranges_from = sequence_ranges(seq, doc if role != "HIDDEN" else None)
     vocabulary = views.prepare_mesh(context, mesh)
     name = name or frames.object_name(seq)
     me = attributes.build_mesh(name, mesh if shown is not None else _empty_mesh())
