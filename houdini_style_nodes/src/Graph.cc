@@ -344,9 +344,9 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         ctx.interrupter = interrupter;
         ctx.warnings = &result.warnings;
         ctx.writes = &writes;
-        ctx.upstreamTimings = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
-        ctx.destinations = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
-        ctx.takeMesh = [&](const std::string& port) {
+        ctx.timingsOfUpstream = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
+        ctx.destinationsOf = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
+        ctx.meshTaker = [&](const std::string& port) {
             const auto& src = node.inputs.at(port);
             NodeValue& value = values[src.first].at(src.second);
             if (!value.mesh) throw std::invalid_argument("input '" + port + "' holds no mesh");
