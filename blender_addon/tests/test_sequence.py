@@ -106,7 +106,8 @@ def assert_shows_file(obj, path):
     expected.update({n + "_face": v for n, v in mesh.face_attributes.items()})
     assert set(cols) == set(expected)
     for name, values in expected.items():
-        assert np.array_equal(cols[name], values.astype(cols[name].dtype)), name
+        assert np.array_equal(cols[name], values.astype(cols[name].dtype),
+                              equal_nan=cols[name].dtype.kind == "f"), name
 
 
 # --- file names and frames (no Blender data) ---------------------------------------------------

@@ -137,10 +137,14 @@ def test_run_isouq_on_the_volume_sequence(cli, smoke, tmp_path):
     s = bpy.context.scene.isouq
     s.volume, s.input_path, s.grid = volume, "", "density"
     s.use_isovalue, s.isovalue, s.method = True, THRESHOLD, "weno"
+    s.hidden_features = True
     s.sequence_dir = str(tmp_path)
     assert bpy.ops.isouq.run_pipeline() == {"FINISHED"}
     obj = bpy.context.active_object
     assert obj.isouq.sequence == str(tmp_path / "smoke" / "smoke.####.ply")
+    hidden = obj.isouq.partner
+    assert hidden.isouq.role == "HIDDEN" and hidden.isouq.partner == obj
+    assert hidden.isouq.sequence == str(tmp_path / "smoke" / "smoke_hidden.####.ply")
     shift = np.array(obj.matrix_world.translation)
     assert np.allclose(shift, VOXEL / 2)                              # Blender's half voxel
     scene = bpy.context.scene
@@ -149,6 +153,9 @@ def test_run_isouq_on_the_volume_sequence(cli, smoke, tmp_path):
         blender = truth["frames"][k - 1]
         assert len(obj.data.vertices) == blender["polygons"]
         assert_shows_file(obj, str(tmp_path / "smoke" / f"smoke.{k:04d}.ply"))
+        assert_shows_file(hidden, str(tmp_path / "smoke" / f"smoke_hidden.{k:04d}.ply"))
+        entry = json.loads(obj.isouq.summary)                     # C7: this frame's entry
+        assert entry["frame"] == k and entry["hidden"]["components_before"] == entry["components"]
         co = np.array([obj.matrix_world @ v.co for v in obj.data.vertices])
         assert np.allclose(co.min(0), blender["bbox_min"], atol=VOXEL)
 
