@@ -26,8 +26,8 @@ address)
   cmake --build "$build" -j"$jobs"
   # Leaks fail too (LeakSanitizer at exit). Python and Blender start the CLI as a plain
   # subprocess, so nothing needs LD_PRELOAD; these variables reach it through the environment.
-  export ASAN_OPTIONS=detect_leaks=1:abort_on_error=0:halt_on_error=1:detect_stack_use_after_return=0:strict_string_checks=1:check_initialization_order=1
-  export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+  export ASAN_OPTIONS=detect_leaks=1:abort_on_error=0:halt_on_error=1:detect_stack_use_after_return=0:check_initialization_order=1
+  export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1:suppressions=$root/scripts/sanitizers/ubsan.supp
   export LSAN_OPTIONS=suppressions=$root/scripts/sanitizers/lsan.supp
   cd "$build"
   ctest --output-on-failure -j"$jobs" --timeout 1800
