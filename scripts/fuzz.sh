@@ -15,7 +15,7 @@ data=${ISOUQ_DATA_DIR:-$root/../shared/data}
 build=${ISOUQ_FUZZ_BUILD:-$root/build-fuzz}
 export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$(dirname "$root")}
 
-scripts/install-deps.sh
+scripts/install-deps.sh --fuzz
 CC=clang-14 CXX=clang++-14 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DISOUQ_BUILD_FUZZERS=ON -DISOUQ_BUILD_TESTS=OFF -DISOUQ_BUILD_BENCH=OFF >/dev/null
 cmake --build "$build" -j"${JOBS:-2}" --target "${targets[@]}" make_vdb_seeds isouq
