@@ -67,19 +67,27 @@ for t in "${targets[@]}"; do
   fi
   seed "$t"
   mkdir -p "$work/artifacts/$t"
-  args=(-max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len="$(max_len "$t")"
-        -print_final_stats=1 -artifact_prefix="$work/artifacts/$t/")
+  # One forked worker (-fork=1): a crash, leak, timeout or OOM is saved and counted, and the run
+  # goes on, so one run lists every distinct failure it can find in the time.
+  args=(-fork=1 -ignore_crashes=1 -ignore_timeouts=1 -ignore_ooms=1
+        -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len="$(max_len "$t")"
+        -artifact_prefix="$work/artifacts/$t/")
   d=$(dict "$t"); [ -n "$d" ] && args+=(-dict="$d")
   echo "isouq: fuzz: $t for ${seconds}s (log $work/$t.log)"
-  if "$bin" "${args[@]}" "$work/corpus/$t" >"$work/$t.log" 2>&1; then
+  rm -f "$work/artifacts/$t"/*
+  rc=0
+  "$bin" "${args[@]}" "$work/corpus/$t" >"$work/$t.log" 2>&1 || rc=$?
+  last=$(grep -E '^#[0-9]+: ' "$work/$t.log" | tail -1)
+  execs[$t]=$(sed -E 's/^#([0-9]+):.*/\1/' <<<"$last")
+  counts=$(grep -oE 'oom/timeout/crash: [0-9]+/[0-9]+/[0-9]+' <<<"$last" | cut -d' ' -f2)
+  found=$(find "$work/artifacts/$t" -type f | wc -l)
+  if [ "$rc" -eq 0 ] && [ "$found" -eq 0 ]; then
     result[$t]=clean
   else
-    result[$t]="FAILED ($(ls "$work/artifacts/$t" | head -1))"
-    tail -60 "$work/$t.log" >&2
+    result[$t]="FAILED: exit $rc, oom/timeout/crash ${counts:-?}, $found inputs in $work/artifacts/$t"
+    grep -E 'ERROR: |SUMMARY: |runtime error' "$work/$t.log" | sort | uniq -c | sort -rn | head -20 >&2
     status=1
   fi
-  execs[$t]=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/$t.log" | tail -1)
-  [ -n "${execs[$t]}" ] || execs[$t]=$(grep -o '^#[0-9]*' "$work/$t.log" | tail -1 | tr -d '#')
 done
 
 echo
