@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian bookworm packages isouq needs to build, test and benchmark.
 # Idempotent; run as root. Skips apt entirely when everything is already there.
+#   scripts/install-deps.sh [--fuzz]   --fuzz: also clang-14 and libFuzzer (scripts/fuzz.sh)
 set -euo pipefail
 packages=(
   build-essential cmake ccache git
@@ -11,6 +12,9 @@ packages=(
   python3-openimageio python3-openvdb hyperfine
   blender
 )
+if [ "${1:-}" = --fuzz ]; then
+  packages+=(clang-14 libfuzzer-14-dev llvm-14)
+fi
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

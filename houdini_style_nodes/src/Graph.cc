@@ -101,6 +101,8 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
     for (const auto& [key, value] : doc.items())
         if (key != "nodes" && key != "description" && key != "figure")
             throw GraphError("unknown key '" + key + "' (a graph has description, figure and nodes)");
+    if (doc.contains("description") && !doc["description"].is_string())
+        throw GraphError("\"description\" must be a string, got " + doc["description"].dump());
 
     std::vector<RawNode> raw;
     std::map<std::string, std::size_t> byId;

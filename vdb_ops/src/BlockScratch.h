@@ -106,7 +106,8 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     for (auto leaf = coarse.beginLeaf(); leaf; ++leaf) {
         for (auto v = leaf->beginValueOn(); v; ++v) {
             v.setValue(next++);
-            blocks.origins.push_back(v.getCoord() << 3);
+            const Coord b = v.getCoord(); // * 8, not << 3: a left shift of a negative int is UB in C++17
+            blocks.origins.push_back(Coord(b[0] * 8, b[1] * 8, b[2] * 8));
         }
     }
 }

@@ -4,6 +4,7 @@
 
 #include <openvdb/io/File.h>
 
+#include <cctype>
 #include <filesystem>
 #include <fstream>
 
@@ -36,6 +37,7 @@ public:
         return s;
     }
     void skip(std::uint64_t n) { need(n); seek(mPos + n); }
+    std::uint64_t position() const { return mPos; }
     void seek(std::uint64_t pos)
     {
         mPos = pos;
@@ -60,6 +62,23 @@ private:
     const std::string& mPath;
 };
 
+/// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
+/// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
+/// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
+void walkMetadata(BoundedReader& r)
+{
+    for (std::uint32_t i = 0, n = r.pod<std::uint32_t>(); i < n; ++i) {
+        r.string();
+        const std::string type = r.string();
+        const std::uint32_t bytes = r.pod<std::uint32_t>();
+        if (type != openvdb::StringMetadata::staticTypeName() && openvdb::Metadata::isRegisteredType(type)
+            && openvdb::Metadata::createMetadata(type)->size() != bytes) {
+            r.fail("metadata of type " + type + " holds " + std::to_string(bytes) + " bytes");
+        }
+        r.skip(bytes);
+    }
+}
+
 void checkVdbLayout(const std::string& path, std::uint64_t size)
 {
     std::ifstream in(path, std::ios::binary);
@@ -74,12 +93,18 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
     }
     r.skip(8);                                  // library major, minor
     const bool hasOffsets = r.pod<char>() != 0;
-    r.skip(36);                                 // UUID
-    for (std::int32_t i = 0, n = r.pod<std::int32_t>(); i < n; ++i) { // file metadata
-        r.string();
-        r.string();
-        r.skip(r.pod<std::uint32_t>());
+    if (version >= openvdb::OPENVDB_FILE_VERSION_SELECTIVE_COMPRESSION
+        && version < openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) {
+        r.skip(1);                              // compression flag of versions 220 and 221
     }
+    // UUID: 36 characters that OpenVDB parses as text (`is >> uuid` skips whitespace and
+    // would then read past where this walk looks), so only hex digits and dashes.
+    for (int i = 0; i < 36; ++i) {
+        const char c = r.pod<char>();
+        const bool dash = i == 8 || i == 13 || i == 18 || i == 23;
+        if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) r.fail("bad UUID");
+    }
+    walkMetadata(r); // file metadata
     if (!hasOffsets) return;
     const std::int32_t grids = r.pod<std::int32_t>();
     if (grids < 0) r.fail("negative grid count");
@@ -94,6 +119,15 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
             r.fail("grid '" + openvdb::io::GridDescriptor::nameAsString(name) + "' ends at byte "
                 + std::to_string(endPos));
         }
+        // The grid follows its descriptor, so the walk (and OpenVDB's) always moves on.
+        if (std::uint64_t(gridPos) < r.position()) r.fail("grid '" +
+            openvdb::io::GridDescriptor::nameAsString(name) + "' starts inside its descriptor");
+        // The grid's start, as Archive::readGrid reads it: compression flags, its metadata and
+        // the transform's type name (lengths and counts there are not checked by OpenVDB).
+        r.seek(std::uint64_t(gridPos));
+        if (version >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) r.skip(4);
+        walkMetadata(r);
+        r.string();
         r.seek(std::uint64_t(endPos)); // the next descriptor follows this grid
     }
 }

@@ -1,0 +1,156 @@
+// Reader inputs that the fuzzers (fuzz/, docs/hardening.md) found mishandled, each rebuilt here
+// from a valid file: every one must now be an InputError with one line, quickly, without
+// OpenVDB reading on past what the file holds. The fuzzers' own inputs are in
+// fuzz/regressions/ and replayed by scripts/fuzz.sh.
+#include <isouq/Diagnostics.h>
+#include <isouq/MarchingCubes.h>
+#include <isouq/VolumeSources.h>
+
+#include <catch2/catch.hpp>
+#include <openvdb/io/File.h>
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <vector>
+
+namespace fs = std::filesystem;
+using Catch::Matchers::Contains;
+
+namespace {
+
+struct TempFile {
+    std::string path;
+    explicit TempFile(const std::string& name)
+        : path((fs::temp_directory_path() / ("isouq_readers_fuzz_" + std::to_string(::getpid()) + "_" + name)).string()) {}
+    ~TempFile() { fs::remove(path); }
+};
+
+/// A valid one-grid level-set .vdb (no compression) as bytes.
+std::vector<char> sphereVdb()
+{
+    openvdb::initialize();
+    TempFile file("sphere.vdb");
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(4.0f, openvdb::Vec3f(0.0f), 1.0f, 2.0f);
+    grid->setName("surface");
+    openvdb::io::File out(file.path);
+    out.setCompression(openvdb::io::COMPRESS_NONE);
+    out.write({grid});
+    out.close();
+    std::ifstream in(file.path, std::ios::binary);
+    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+template <typename T>
+void poke(std::vector<char>& bytes, std::size_t at, T value)
+{
+    REQUIRE(at + sizeof(T) <= bytes.size());
+    std::memcpy(bytes.data() + at, &value, sizeof(T));
+}
+
+template <typename T>
+T peek(const std::vector<char>& bytes, std::size_t at)
+{
+    T value;
+    std::memcpy(&value, bytes.data() + at, sizeof(T));
+    return value;
+}
+
+/// loadVolume's InputError message for @a bytes as a .vdb file ("" if it loads).
+std::string loadError(const std::vector<char>& bytes)
+{
+    TempFile file("input.vdb");
+    std::ofstream(file.path, std::ios::binary).write(bytes.data(), std::streamsize(bytes.size()));
+    isouq::VolumeRequest request;
+    request.input = file.path;
+    try {
+        isouq::loadVolume(request);
+    } catch (const isouq::InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+// Header layout of file version 224: magic (8), version (4), library version (8), has
+// offsets (1), UUID (36 characters), file metadata count (4), grid count (4), descriptors.
+constexpr std::size_t kUuid = 21, kFileMeta = 57, kGridCount = 61, kDescriptor = 65;
+
+} // namespace
+
+TEST_CASE("ReadersFuzz: a valid sphere loads", "[sources][vdb][fuzz]")
+{
+    CHECK(loadError(sphereVdb()).empty());
+}
+
+TEST_CASE("ReadersFuzz: an unsigned file metadata count is walked as unsigned", "[sources][vdb][fuzz]")
+{
+    // Was: the walk took 0xffffffff as -1 entries, OpenVDB as 4 billion (a timeout).
+    std::vector<char> bytes = sphereVdb();
+    REQUIRE(peek<std::uint32_t>(bytes, kFileMeta) == 0);
+    poke<std::uint32_t>(bytes, kFileMeta, 0xffffffffu);
+    CHECK_THAT(loadError(bytes), Contains("truncated or corrupt"));
+}
+
+TEST_CASE("ReadersFuzz: a UUID with blanks is refused", "[sources][vdb][fuzz]")
+{
+    // OpenVDB parses the UUID as text and skips blanks, so its reads and the walk's would part.
+    std::vector<char> bytes = sphereVdb();
+    bytes[kUuid + 1] = ' ';
+    CHECK_THAT(loadError(bytes), Contains("bad UUID"));
+}
+
+TEST_CASE("ReadersFuzz: a fixed-size metadata value must have its size", "[sources][vdb][fuzz]")
+{
+    // File metadata {"k": int32 of 100 bytes}: OpenVDB reads 4 and goes on from byte 5 of it.
+    std::vector<char> bytes = sphereVdb();
+    std::vector<char> entry;
+    auto put32 = [&entry](std::uint32_t v) { entry.insert(entry.end(), reinterpret_cast<char*>(&v), reinterpret_cast<char*>(&v) + 4); };
+    auto putString = [&](const std::string& s) { put32(std::uint32_t(s.size())); entry.insert(entry.end(), s.begin(), s.end()); };
+    putString("k");
+    putString("int32");
+    put32(100);
+    entry.resize(entry.size() + 100, '\0');
+    poke<std::uint32_t>(bytes, kFileMeta, 1);
+    bytes.insert(bytes.begin() + kFileMeta + 4, entry.begin(), entry.end());
+    CHECK_THAT(loadError(bytes), Contains("metadata of type int32 holds 100 bytes"));
+}
+
+TEST_CASE("ReadersFuzz: a grid's own metadata count is walked", "[sources][vdb][fuzz]")
+{
+    std::vector<char> bytes = sphereVdb();
+    REQUIRE(peek<std::int32_t>(bytes, kGridCount) == 1);
+    std::size_t at = kDescriptor;
+    for (int s = 0; s < 3; ++s) at += 4 + peek<std::uint32_t>(bytes, at); // name, type, parent
+    const auto gridPos = std::size_t(peek<std::int64_t>(bytes, at));
+    // compression flags (4), then the grid's metadata count
+    poke<std::uint32_t>(bytes, gridPos + 4, 0x7fffffffu);
+    CHECK_THAT(loadError(bytes), Contains("truncated or corrupt"));
+}
+
+TEST_CASE("ReadersFuzz: a raw ball at the origin meshes without undefined behaviour", "[sources][raw][fuzz]")
+{
+    // Was (UBSan, fuzz_raw): block origins made with Coord << 3, a left shift of the negative
+    // coordinates of the blocks left of the data. Run under scripts/sanitize.sh to see it.
+    TempFile file("ball_6x6x6_float32.raw");
+    std::vector<float> values;
+    for (int z = 0; z < 6; ++z)
+        for (int y = 0; y < 6; ++y)
+            for (int x = 0; x < 6; ++x)
+                values.push_back(float(std::sqrt((x - 2.5) * (x - 2.5) + (y - 2.5) * (y - 2.5) + (z - 2.5) * (z - 2.5)) - 2.0));
+    std::ofstream(file.path, std::ios::binary)
+        .write(reinterpret_cast<const char*>(values.data()), std::streamsize(values.size() * sizeof(float)));
+    isouq::VolumeRequest request;
+    request.input = file.path;
+    request.isovalue = 0.0f;
+    const isouq::LoadedVolume volume = isouq::loadVolume(request);
+    isouq::MeshSettings settings;
+    settings.isovalue = 0.0f;
+    settings.uncertainty = true;
+    CHECK(isouq::extractIsosurface(*volume.grid, settings).triangles.size() > 0);
+}
