@@ -92,6 +92,9 @@ void cookMesh(CookContext& ctx)
     out->info["input"] = volume.input;
     out->info["description"] = volume.description;
     out->info["isovalue_source"] = settings.isovalue == volume.isovalue ? volume.isovalueSource : "given";
+    // The input's affine (SPEC §10 "Formats"), also the PLY's `comment isouq index_to_world`.
+    out->info["index_to_world"] = out->mesh.indexToWorld;
+    if (!volume.geometry.empty()) out->info["geometry"] = volume.geometry;
     if (volume.denseBlocks > 0)
         out->info["sparse_blocks"] = {{"dense", volume.denseBlocks}, {"kept", volume.keptBlocks}};
     ctx.outputs["mesh"].mesh = std::move(out);

@@ -56,9 +56,10 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
     }
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
+    if (si::endsWith(input, ".nii") || si::endsWith(input, ".nii.gz")) return si::loadNifti(request, interrupter);
     si::fileSize(input); // a missing file says so first
     throw InputError("cannot tell what '" + input
-        + "' is: expected a .vdb or .raw file, field:NAME or formula:EXPR");
+        + "' is: expected a .vdb, .raw, .nii or .nii.gz file, field:NAME or formula:EXPR");
 }
 
 } // namespace
