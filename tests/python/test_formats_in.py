@@ -192,3 +192,84 @@ def test_bad_nifti_files_give_one_line(isouq_cli, tmp_path):
     assert_one_error_line(isouq_cli, tmp_path, good, "--spacing applies to .raw files",
                           args=("--spacing", "1,1,1"))
     assert_one_error_line(isouq_cli, tmp_path, tmp_path / "missing.nii.gz", "no such file")
+
+
+# ---- NRRD -------------------------------------------------------------------------------
+
+def nrrd_header(dtype, encoding="raw", endian="little", geometry="directions", extra=()):
+    """A NRRD0004 header written from the format's documentation (teem's "NRRD file format")."""
+    types = {np.uint8: "uint8", np.int8: "int8", np.int16: "short", np.uint16: "ushort", np.int32: "int",
+             np.float32: "float", np.float64: "double", np.uint64: "unsigned long long int"}
+    lines = ["NRRD0004", "# written by test_formats_in.py", f"type: {types[dtype]}", "dimension: 3",
+             "sizes: " + " ".join(map(str, SHAPE)), f"encoding: {encoding}"]
+    if np.dtype(dtype).itemsize > 1:
+        lines.append(f"endian: {endian}")
+    if geometry == "directions":
+        vector = lambda v: "(" + ",".join(repr(float(x)) for x in v) + ")"  # noqa: E731
+        lines += ["space: left-posterior-superior",
+                  "space directions: " + " ".join(vector(AFFINE[:3, a]) for a in range(3)),
+                  "space origin: " + vector(AFFINE[:3, 3])]
+    elif geometry == "spacings":
+        lines.append("spacings: 0.5 0.75 2")
+    return "\n".join(lines + list(extra)) + "\n"
+
+
+def nrrd_data(dtype, encoding="raw", endian="little"):
+    values = blobs().transpose(2, 1, 0).astype(np.dtype(dtype).newbyteorder("<" if endian == "little" else ">"))
+    data = values.tobytes()
+    return gzip.compress(data) if encoding == "gzip" else data
+
+
+@pytest.mark.parametrize("dtype, encoding, endian", [
+    (np.uint8, "raw", "little"), (np.int16, "gzip", "big"), (np.float32, "raw", "big"),
+    (np.float64, "gzip", "little"), (np.uint16, "raw", "little"), (np.int8, "gzip", "little"),
+    (np.int32, "raw", "big"), (np.uint64, "raw", "little"),
+])
+def test_attached_nrrd_is_the_raw_mesh_moved_by_its_space(isouq_cli, tmp_path, reference, dtype, encoding, endian):
+    path = tmp_path / "scan.nrrd"
+    path.write_bytes(nrrd_header(dtype, encoding, endian).encode() + b"\n" + nrrd_data(dtype, encoding, endian))
+    ply, summary = mesh(isouq_cli, tmp_path, path, "nrrd", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, AFFINE)
+    assert summary["geometry"] == "NRRD space directions (left-posterior-superior)"
+    assert summary["description"].startswith(f"scan.nrrd: NRRD {np.dtype(dtype).name} ({encoding})")
+
+
+@pytest.mark.parametrize("encoding", ["raw", "gzip"])
+def test_detached_nhdr_reads_its_data_file(isouq_cli, tmp_path, reference, encoding):
+    (tmp_path / "data").mkdir()
+    name = "data/voxels.raw" + (".gz" if encoding == "gzip" else "")
+    (tmp_path / name).write_bytes(b"JUNK" + nrrd_data(np.int16, encoding) if encoding == "raw"
+                                  else nrrd_data(np.int16, encoding))
+    extra = [f"data file: {name}"] + (["byte skip: 4"] if encoding == "raw" else [])
+    (tmp_path / "scan.nhdr").write_text(nrrd_header(np.int16, encoding, extra=extra))
+    ply, _ = mesh(isouq_cli, tmp_path, tmp_path / "scan.nhdr", "nhdr", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, AFFINE)
+
+
+def test_nrrd_spacings_without_a_space(isouq_cli, tmp_path, reference):
+    path = tmp_path / "spaced.nrrd"
+    path.write_bytes(nrrd_header(np.float32, geometry="spacings").encode() + b"\n" + nrrd_data(np.float32))
+    ply, summary = mesh(isouq_cli, tmp_path, path, "spaced", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, np.diag([0.5, 0.75, 2.0, 1.0]))
+    assert summary["geometry"] == "NRRD spacings"
+
+
+def test_bad_nrrd_files_give_one_line(isouq_cli, tmp_path):
+    good = nrrd_header(np.int16).encode() + b"\n" + nrrd_data(np.int16)
+    (tmp_path / "cut.nrrd").write_bytes(good[:len(good) // 2])
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "cut.nrrd", "cannot read the data of")
+    gz = nrrd_header(np.int16, "gzip").encode() + b"\n" + nrrd_data(np.int16, "gzip")
+    (tmp_path / "cut_gz.nrrd").write_bytes(gz[:len(gz) - 500])
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "cut_gz.nrrd", "cannot read the data of")
+    (tmp_path / "four.nrrd").write_text("NRRD0004\ntype: float\ndimension: 4\nsizes: 2 3 4 5\nencoding: raw\n"
+                                        "endian: little\n\n" + "\0" * 480)
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "four.nrrd", "dimension 4", "one 3-D scalar volume")
+    (tmp_path / "block.nrrd").write_text("NRRD0004\ntype: block\nblock size: 2\ndimension: 3\nsizes: 2 2 2\nendian: little\n"
+                                         "encoding: raw\n\n" + "\0" * 16)
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "block.nrrd", "NRRD type block", "scalar volumes")
+    (tmp_path / "typo.nrrd").write_text("NRRD0004\ntype: flaot\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n")
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "typo.nrrd", "not a readable NRRD file")
+    (tmp_path / "lost.nhdr").write_text(nrrd_header(np.int16, extra=["data file: nowhere.raw"]))
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "lost.nhdr", "lost.nhdr")
+    (tmp_path / "noise.nrrd").write_bytes(np.random.default_rng(2).bytes(3000))
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "noise.nrrd", "not a readable NRRD file")

@@ -57,9 +57,10 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
     if (si::endsWith(input, ".nii") || si::endsWith(input, ".nii.gz")) return si::loadNifti(request, interrupter);
+    if (si::endsWith(input, ".nrrd") || si::endsWith(input, ".nhdr")) return si::loadNrrd(request, interrupter);
     si::fileSize(input); // a missing file says so first
     throw InputError("cannot tell what '" + input
-        + "' is: expected a .vdb, .raw, .nii or .nii.gz file, field:NAME or formula:EXPR");
+        + "' is: expected a .vdb, .raw, .nii, .nii.gz, .nrrd or .nhdr file, field:NAME or formula:EXPR");
 }
 
 } // namespace
