@@ -55,7 +55,7 @@ def mesh(cli, folder, source, name, *args):
     return ply_io.read_ply(out), json.loads(summary.read_text())
 
 
-def assert_moved_by(scan, reference, affine):
+def assert_moved_by(scan, reference, affine, matrix_atol=1e-12):
     """The scan's mesh is the reference (identity transform) mesh with every vertex moved by
     `affine`: same triangles, edges and crossings; errors in world units scale with the edge."""
     assert scan.vertex_count == reference.vertex_count > 100
@@ -66,7 +66,7 @@ def assert_moved_by(scan, reference, affine):
     moved = reference.positions.astype(np.float64) @ affine[:3, :3].T + affine[:3, 3]
     scale = np.abs(moved).max()
     assert np.abs(scan.positions - moved).max() <= 2e-6 * scale
-    assert np.allclose(scan.index_to_world, affine, rtol=0, atol=1e-12)
+    assert np.allclose(scan.index_to_world, affine, rtol=0, atol=matrix_atol)
     # SPEC §3: e and e_b are lengths along the edge: the edge's world length times the index one.
     edge_length = np.linalg.norm(affine[:3, :3], axis=0)[r["edge_axis"]]
     for column in ("err_est", "err_bound"):
@@ -273,3 +273,69 @@ def test_bad_nrrd_files_give_one_line(isouq_cli, tmp_path):
     assert_one_error_line(isouq_cli, tmp_path, tmp_path / "lost.nhdr", "lost.nhdr")
     (tmp_path / "noise.nrrd").write_bytes(np.random.default_rng(2).bytes(3000))
     assert_one_error_line(isouq_cli, tmp_path, tmp_path / "noise.nrrd", "not a readable NRRD file")
+
+
+# ---- TIFF stacks ------------------------------------------------------------------------
+
+tifffile = pytest.importorskip("tifffile")
+
+
+def zyx(dtype):
+    return np.ascontiguousarray(blobs().transpose(2, 1, 0).astype(dtype))  # pages, rows, columns
+
+
+@pytest.mark.parametrize("dtype, options", [
+    (np.uint8, {}), (np.uint16, {"compression": "zlib"}), (np.float32, {"tile": (16, 16)}),
+    (np.int16, {"compression": "zlib", "predictor": True}), (np.float64, {}), (np.int32, {"tile": (16, 16)}),
+])
+def test_multipage_tiff_is_the_raw_mesh(isouq_cli, tmp_path, reference, dtype, options):
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, zyx(dtype), **options)
+    ply, summary = mesh(isouq_cli, tmp_path, path, "tif", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, np.eye(4))
+    assert summary["description"].startswith(f"stack.tif: TIFF {np.dtype(dtype).name}")
+    spaced, summary = mesh(isouq_cli, tmp_path, path, "tif_spaced", "--isovalue", ISOVALUE, "--spacing", "0.5,0.75,2")
+    assert_moved_by(spaced, reference, np.diag([0.5, 0.75, 2.0, 1.0]))
+    assert summary["geometry"] == "--spacing"
+
+
+def test_folder_of_numbered_slices_sorts_by_number(isouq_cli, tmp_path, reference):
+    folder = tmp_path / "slices"
+    folder.mkdir()
+    for z, page in enumerate(zyx(np.uint16)):
+        tifffile.imwrite(folder / f"slice_{z + 1}.tiff", page)  # 1, 2, ..., 10: not in name order
+    (folder / "notes.txt").write_text("not a slice")
+    ply, summary = mesh(isouq_cli, tmp_path, folder, "folder", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, np.eye(4))
+    assert summary["description"].startswith("slice_1.tiff and 28 more slices: TIFF uint16")
+
+
+def test_imagej_tiff_spacing(isouq_cli, tmp_path, reference):
+    path = tmp_path / "imagej.tif"
+    tifffile.imwrite(path, zyx(np.uint16), imagej=True, resolution=(1 / 0.5, 1 / 0.75),
+                     metadata={"spacing": 2.0, "unit": "um"})
+    ply, summary = mesh(isouq_cli, tmp_path, path, "imagej", "--isovalue", ISOVALUE)
+    # The resolutions are TIFF rationals that libtiff returns as float: 1/0.75 to 7 digits.
+    assert_moved_by(ply, reference, np.diag([0.5, 0.75, 2.0, 1.0]), matrix_atol=1e-7)
+    assert summary["geometry"] == "ImageJ description (unit um)"
+
+
+def test_bad_tiff_stacks_give_one_line(isouq_cli, tmp_path):
+    tifffile.imwrite(tmp_path / "good.tif", zyx(np.uint16))
+    data = (tmp_path / "good.tif").read_bytes()
+    (tmp_path / "cut.tif").write_bytes(data[:len(data) // 2])
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "cut.tif", "cut.tif")
+    (tmp_path / "head.tif").write_bytes(data[:6])
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "head.tif", "not a readable TIFF file")
+    tifffile.imwrite(tmp_path / "rgb.tif", np.zeros((4, 8, 8, 3), np.uint8), photometric="rgb")
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "rgb.tif", "3 samples per pixel", "one-channel")
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    tifffile.imwrite(folder / "s0.tif", np.zeros((8, 8), np.uint8))
+    tifffile.imwrite(folder / "s1.tif", np.zeros((8, 9), np.uint8))
+    assert_one_error_line(isouq_cli, tmp_path, folder, "s1.tif' is 9x8 uint8", "every slice of a stack must match")
+    tifffile.imwrite(tmp_path / "half.tif", np.zeros((4, 8, 8), np.float16), photometric="minisblack")
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "half.tif", "16-bit samples of format 3",
+                          "isouq reads 8, 16, 32 or 64-bit integers")
+    assert_one_error_line(isouq_cli, tmp_path, tmp_path / "good.tif", "--dims applies to .raw files",
+                          args=("--dims", "23,17,29"))

@@ -79,7 +79,9 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
 LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NiftiSource.cc
 LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NrrdSource.cc
 LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // TiffSource.cc
-LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // DicomSource.cc
+/// A folder holding .tif/.tiff files (else a folder is read as a DICOM series).
+bool isTiffFolder(const std::string& path);
+
 LoadedVolume loadVdb(const VolumeRequest& request);                                                // VdbSource.cc
 /// A field: or formula: input sampled at n^3 points (FieldSource.cc).
 LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const VolumeRequest& request,
