@@ -339,3 +339,133 @@ def test_bad_tiff_stacks_give_one_line(isouq_cli, tmp_path):
                           "isouq reads 8, 16, 32 or 64-bit integers")
     assert_one_error_line(isouq_cli, tmp_path, tmp_path / "good.tif", "--dims applies to .raw files",
                           args=("--dims", "23,17,29"))
+
+
+# ---- DICOM series -----------------------------------------------------------------------
+
+pydicom = pytest.importorskip("pydicom")
+
+
+def write_series(folder, dtype=np.int16, slope=0.5, intercept=-1024.0, positions=None, series_uid=None,
+                 shape=SHAPE, values=None):
+    """One CT series written with pydicom, one file per slice under a random name, instance numbers
+    reversed: isouq must sort by Image Position (Patient). Returns the file paths by slice."""
+    from pydicom.dataset import FileDataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+    folder.mkdir(exist_ok=True)
+    nx, ny, nz = shape
+    values = blobs(shape) if values is None else values
+    stored = np.round((values - intercept) / slope).astype(dtype)
+    assert np.array_equal(stored * slope + intercept, values)
+    series_uid = series_uid or generate_uid()
+    if positions is None:
+        positions = [AFFINE[:3, 3] + k * AFFINE[:3, 2] for k in range(nz)]
+    rng = np.random.default_rng()  # file names in no order
+    paths = []
+    for k in range(nz):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID = CTImageStorage
+        meta.MediaStorageSOPInstanceUID = generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        path = folder / f"IM{rng.integers(1 << 40):012x}"
+        ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
+        ds.SOPClassUID, ds.SOPInstanceUID = CTImageStorage, meta.MediaStorageSOPInstanceUID
+        ds.StudyInstanceUID, ds.SeriesInstanceUID = "1.2.3.4", series_uid
+        ds.Modality, ds.PatientName, ds.InstanceNumber = "CT", "Test^Blobs", nz - k
+        ds.Rows, ds.Columns = ny, nx
+        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+        bits = np.dtype(dtype).itemsize * 8
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit = bits, bits, bits - 1
+        ds.PixelRepresentation = 1 if np.dtype(dtype).kind == "i" else 0
+        ds.ImagePositionPatient = [float(v) for v in positions[k]]
+        ds.ImageOrientationPatient = [float(v) for v in (*(AFFINE[:3, 0] / 0.9), *(AFFINE[:3, 1] / 1.1))]
+        ds.PixelSpacing = [1.1, 0.9]  # between rows (y), between columns (x)
+        ds.SliceThickness = 2.5
+        ds.RescaleSlope, ds.RescaleIntercept = slope, intercept
+        ds.PixelData = np.ascontiguousarray(stored[:, :, k].T).astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+        ds.is_little_endian, ds.is_implicit_VR = True, False
+        ds.save_as(str(path))
+        paths.append(path)
+    return paths
+
+
+@pytest.mark.parametrize("dtype, slope, intercept", [(np.int16, 0.5, -1024.0), (np.uint16, 1.0, 0.0),
+                                                     (np.uint8, 1.0, 0.0)])
+def test_dicom_series_is_the_raw_mesh_moved_by_its_geometry(isouq_cli, tmp_path, reference, dtype, slope, intercept):
+    paths = write_series(tmp_path / "series", dtype, slope, intercept)
+    (tmp_path / "series" / "DICOMDIR.txt").write_text("not DICOM")  # ignored
+    assert pydicom.dcmread(paths[0]).pixel_array.shape == (SHAPE[1], SHAPE[0])
+    ply, summary = mesh(isouq_cli, tmp_path, tmp_path / "series", "dicom", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, AFFINE, matrix_atol=1e-9)
+    assert summary["geometry"] == "DICOM image position and orientation (LPS)"
+    assert summary["description"].startswith(f"series: DICOM series of 29 slices, {np.dtype(dtype).name}")
+
+
+def test_dicom_series_with_a_tilt(isouq_cli, tmp_path, reference):
+    """Gantry tilt: positions step along a vector that is not the normal; the affine follows them."""
+    step = np.array([0.0, 0.3, 2.5])
+    origin = AFFINE[:3, 3]
+    write_series(tmp_path / "tilted", positions=[origin + k * step for k in range(SHAPE[2])])
+    ply, _ = mesh(isouq_cli, tmp_path, tmp_path / "tilted", "tilted", "--isovalue", ISOVALUE)
+    affine = AFFINE.copy()
+    affine[:3, 2] = step
+    assert_moved_by(ply, reference, affine, matrix_atol=1e-9)
+
+
+def test_bad_dicom_folders_give_one_line(isouq_cli, tmp_path):
+    small = (5, 4, 3)
+    values = np.arange(60, dtype=np.float64).reshape(small)
+    two = tmp_path / "two_series"
+    write_series(two, shape=small, values=values, series_uid="1.2.3.1")
+    write_series(two, shape=small, values=values, series_uid="1.2.3.2")
+    assert_one_error_line(isouq_cli, tmp_path, two, "holds 2 DICOM series", args=())
+    gaps = tmp_path / "gaps"
+    write_series(gaps, shape=small, values=values,
+                 positions=[AFFINE[:3, 3] + k * AFFINE[:3, 2] for k in (0, 1, 3)])
+    assert_one_error_line(isouq_cli, tmp_path, gaps, "not evenly spaced", args=())
+    cut = tmp_path / "cut"
+    paths = write_series(cut, shape=small, values=values)
+    paths[1].write_bytes(paths[1].read_bytes()[:-20])
+    assert_one_error_line(isouq_cli, tmp_path, cut, str(paths[1].name), args=())
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "readme.txt").write_text("nothing here")
+    assert_one_error_line(isouq_cli, tmp_path, empty, "holds no TIFF slices and no DICOM files", args=())
+    one = tmp_path / "one"
+    write_series(one, shape=(5, 4, 1), values=values[:, :, :1])
+    assert_one_error_line(isouq_cli, tmp_path, one, "holds one DICOM slice", args=())
+    assert_one_error_line(isouq_cli, tmp_path, two, "--spacing applies to .raw files and TIFF",
+                          args=("--spacing", "1,1,1"))
+
+
+@pytest.mark.parametrize("name", ["CT_small.dcm", "MR_small_bigendian.dcm", "MR_small_RLE.dcm", "MR_small_implicit.dcm"])
+def test_dicom_series_from_pydicom_test_files(isouq_cli, tmp_path, name):
+    """Real scanner slices from python3-pydicom's test data (CT int16 with a rescale, MR big-endian,
+    RLE-compressed and implicit VR), copied four times along the slice normal as one series; the truth
+    is pydicom's own decoding of the pixels (the synthetic series above checks the sorting)."""
+    source = Path(pydicom.__file__).parent / "data" / "test_files" / name
+    if not source.exists():
+        pytest.skip(f"{source} is not installed")
+    from pydicom.uid import generate_uid
+    folder = tmp_path / "series"
+    folder.mkdir()
+    first = pydicom.dcmread(source)
+    row, col = np.array(first.ImageOrientationPatient[:3], float), np.array(first.ImageOrientationPatient[3:], float)
+    normal = np.cross(row, col)
+    for k, shift in enumerate([0.0, 3.0, 1.0, 2.0]):  # written out of order
+        ds = pydicom.dcmread(source)
+        ds.SeriesInstanceUID, ds.SOPInstanceUID = "1.2.826.0.1.3680043.8.498.1", generate_uid()
+        ds.ImagePositionPatient = [float(v) for v in np.array(first.ImagePositionPatient, float) + 1.5 * shift * normal]
+        ds.save_as(str(folder / f"slice{k}.dcm"))
+    pixels = pydicom.dcmread(source).pixel_array.astype(np.float64)
+    slope, intercept = float(getattr(first, "RescaleSlope", 1)), float(getattr(first, "RescaleIntercept", 0))
+    values = np.stack([pixels * slope + intercept] * 4, axis=0).transpose(2, 1, 0)  # x, y, z
+    isovalue = float(np.percentile(values, 60))
+    ply, summary = mesh(isouq_cli, tmp_path, folder, "real", "--isovalue", isovalue)
+    ref, _ = mesh(isouq_cli, tmp_path, write_raw(tmp_path, values, "real"), "real_raw", "--isovalue", isovalue)
+    spacing = [float(v) for v in first.PixelSpacing]
+    affine = np.eye(4)
+    affine[:3, 0], affine[:3, 1], affine[:3, 2] = row * spacing[1], col * spacing[0], 1.5 * normal
+    affine[:3, 3] = np.array(first.ImagePositionPatient, float)
+    assert_moved_by(ply, ref, affine, matrix_atol=1e-6)
+    assert summary["description"].startswith("series: DICOM series of 4 slices")

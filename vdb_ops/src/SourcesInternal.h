@@ -81,6 +81,7 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
 LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // TiffSource.cc
 /// A folder holding .tif/.tiff files (else a folder is read as a DICOM series).
 bool isTiffFolder(const std::string& path);
+LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // DicomSource.cc
 
 LoadedVolume loadVdb(const VolumeRequest& request);                                                // VdbSource.cc
 /// A field: or formula: input sampled at n^3 points (FieldSource.cc).
