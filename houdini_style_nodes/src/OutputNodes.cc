@@ -23,6 +23,8 @@ PlyOptions plyOptionsOf(const MeshData& m)
     ply.version = ISOUQ_VERSION_STRING;
     ply.isovalue = m.isovalue;
     ply.method = m.method;
+    // Where the index_to_world comment comes from for scans with a header (SPEC §10 "Formats").
+    if (m.info.contains("geometry")) ply.comments.push_back("isouq geometry " + m.info["geometry"].get<std::string>());
     return ply;
 }
 

@@ -142,6 +142,7 @@ def test_nifti_from_debian_nibabel_data(isouq_cli, tmp_path):
     assert_moved_by(ply, ref, image.affine)
     assert np.linalg.det(image.affine[:3, :3]) < 0  # x flipped (radiological): kept as stored
     assert summary["geometry"] == "NIfTI sform (code 2)"
+    assert "isouq geometry NIfTI sform (code 2)" in ply.comments
 
 
 def test_nifti_without_orientation_uses_the_voxel_sizes(isouq_cli, tmp_path, reference):
