@@ -248,3 +248,27 @@ def test_meshio_reads_a_hidden_feature_mesh_from_ascii(teardrop):
         assert got.dtype == values.dtype and np.array_equal(got, values, equal_nan=values.dtype.kind == "f"), column
         assert same_bits(ascii_ply.vertex_attributes[column], values), column
     assert np.array_equal(ascii_ply.corners, binary.corners)
+
+
+def test_saved_graph_reproduces_vtp_and_colours(isouq_cli, tmp_path):
+    """SPEC §10 "One runner": the graph `isouq mesh` ran (write_vtp, color_map) run again gives
+    the same bytes."""
+    first, again = tmp_path / "first", tmp_path / "again"
+    first.mkdir(), again.mkdir()
+    args = ["mesh", "field:teardrop", "-n", 24, "--hidden-features", "--color-by", "d_lw", "--colormap",
+            "coolwarm", "-o", "mc.vtp", "--hidden-out", "hf.ply", "--ply-format", "ascii"]
+    proc = subprocess.run([isouq_cli, *map(str, args), "--save-graph", "g.json", "-q"], cwd=first,
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "--ply-format applies to .ply outputs" in proc.stderr
+    args = args[:-2]
+    proc = subprocess.run([isouq_cli, *map(str, args), "--save-graph", "g.json", "-q"], cwd=first,
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    graph = json.loads((first / "g.json").read_text())
+    types = [n["type"] for n in graph["nodes"]]
+    assert types.count("color_map") == 2 and "write_vtp" in types and "write_ply" in types
+    shutil.copy(first / "g.json", again / "g.json")
+    proc = subprocess.run([isouq_cli, "run", "g.json", "-q"], cwd=again, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("mc.vtp", "hf.ply"):
+        assert (first / name).read_bytes() == (again / name).read_bytes(), name
