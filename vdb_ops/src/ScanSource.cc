@@ -90,8 +90,9 @@ void rejectRawFlags(const VolumeRequest& request, const std::string& format, boo
     const char* flag = request.dims ? "--dims" : !request.dtype.empty() ? "--dtype"
         : request.spacing && !spacingAllowed ? "--spacing" : nullptr;
     if (flag) {
-        throw InputError(std::string(flag) + " applies to .raw files" + (spacingAllowed ? "" : " and TIFF stacks")
-            + "; '" + request.input + "' is " + format + " and its header says");
+        const bool spacing = std::string(flag) == "--spacing";
+        throw InputError(std::string(flag) + " applies to .raw files" + (spacing ? " and TIFF stacks" : "") + "; '"
+            + request.input + "' is " + format + " and its header says");
     }
 }
 
