@@ -247,6 +247,19 @@ def test_detached_nhdr_reads_its_data_file(isouq_cli, tmp_path, reference, encod
     assert_moved_by(ply, reference, AFFINE)
 
 
+def test_nrrd_ascii_and_data_at_the_end(isouq_cli, tmp_path, reference):
+    """ascii data (decoded by teem whole) and `byte skip: -1` (raw data are the file's last bytes)."""
+    text = " ".join(str(int(v)) for v in blobs().transpose(2, 1, 0).ravel())
+    (tmp_path / "text.nrrd").write_text(nrrd_header(np.int16, "ascii") + "\n" + text + "\n")
+    ply, summary = mesh(isouq_cli, tmp_path, tmp_path / "text.nrrd", "text", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, AFFINE)
+    assert "(ASCII)" in summary["description"]  # teem's name of the encoding
+    (tmp_path / "tail.raw").write_bytes(b"a preamble of any length" + nrrd_data(np.uint16))
+    (tmp_path / "tail.nhdr").write_text(nrrd_header(np.uint16, extra=["data file: tail.raw", "byte skip: -1"]))
+    ply, _ = mesh(isouq_cli, tmp_path, tmp_path / "tail.nhdr", "tail", "--isovalue", ISOVALUE)
+    assert_moved_by(ply, reference, AFFINE)
+
+
 def test_nrrd_spacings_without_a_space(isouq_cli, tmp_path, reference):
     path = tmp_path / "spaced.nrrd"
     path.write_bytes(nrrd_header(np.float32, geometry="spacings").encode() + b"\n" + nrrd_data(np.float32))

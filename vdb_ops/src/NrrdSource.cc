@@ -1,12 +1,18 @@
 // isouq: NRRD scans, `.nrrd` (attached) and `.nhdr` (detached, `data file:`), through teem
-// (libteem; SPEC §10 "Formats"; docs/inputs.md). Every encoding teem reads (raw, gzip, bzip2,
-// ascii, hex). World coordinates from `space directions` and `space origin` in the file's own
-// `space`, else from `spacings` (1 where missing) and the origin 0.
+// (libteem; SPEC §10 "Formats"; docs/inputs.md). teem parses the header and opens the data;
+// raw and gzip data in one file are then streamed slice by slice like a raw scan, the other
+// encodings (bzip2, ascii, hex) and data split over several files are decoded by teem whole.
+// World coordinates from `space directions` and `space origin` in the file's own `space`,
+// else from `spacings` (1 where missing) and the origin 0.
 #include "SourcesInternal.h"
 
 #include <teem/nrrd.h>
+#include <zlib.h>
+
+#include <unistd.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -56,7 +62,8 @@ std::string teemError()
     return s;
 }
 
-/// The decoded samples (teem reads the whole data in the file's type, native byte order).
+/// Data that teem decodes whole (bzip2, ascii, hex, several data files), in the file's type
+/// and native byte order.
 class NrrdSlices : public SliceSource {
 public:
     NrrdSlices(const Nrrd& nrrd, SampleType type) : mData(static_cast<const char*>(nrrd.data)), mType(type)
@@ -75,6 +82,85 @@ private:
     SampleType mType;
 };
 
+/// Raw or gzip data of one data file, read slice by slice from where the header ends (teem
+/// leaves that file open at the data: keepNrrdDataFileOpen).
+class NrrdStreamSlices : public SliceSource {
+public:
+    NrrdStreamSlices(const std::string& path, std::FILE* file, bool gzip, bool bigEndian, SampleType type, Coord size,
+        long byteSkip)
+        : mPath(path), mFile(file), mType(type), mBigEndian(bigEndian)
+    {
+        dims = size;
+        const std::uint64_t bytes = std::uint64_t(dims.x()) * dims.y() * dims.z() * sampleBytes(type);
+        std::error_code ec;
+        if (!gzip) {
+            if (byteSkip < 0) { // "byte skip: -1": the data are the file's last bytes
+                std::fseek(mFile, 0, SEEK_END);
+                std::fseek(mFile, std::ftell(mFile) - long(bytes), SEEK_SET);
+            }
+            mStart = std::ftell(mFile);
+            std::fseek(mFile, 0, SEEK_END);
+            const long end = std::ftell(mFile);
+            if (mStart < 0 || end < mStart || std::uint64_t(end - mStart) < bytes) {
+                throw InputError("cannot read the data of '" + path + "': " + std::to_string(bytes)
+                    + " bytes of data needed, " + std::to_string(end - mStart) + " in the file");
+            }
+            return;
+        }
+        // zlib reads the gzip stream from the descriptor's offset: the stream starts where the
+        // header (or the byte skip) ends, and gzrewind comes back there.
+        const int fd = ::dup(fileno(mFile));
+        if (fd < 0 || ::lseek(fd, std::ftell(mFile), SEEK_SET) < 0 || !(mGz = gzdopen(fd, "rb"))) {
+            if (fd >= 0) ::close(fd);
+            throw InputError("cannot read the gzip data of '" + path + "'");
+        }
+        mPosition = 0; // the stream is at the first sample
+    }
+    ~NrrdStreamSlices() override
+    {
+        if (mGz) gzclose(mGz);
+    }
+    NrrdStreamSlices(const NrrdStreamSlices&) = delete;
+    NrrdStreamSlices& operator=(const NrrdStreamSlices&) = delete;
+
+    void read(int z0, int count, float* out) override
+    {
+        const std::size_t n = std::size_t(dims.x()) * dims.y() * count, bytes = n * sampleBytes(mType);
+        const std::int64_t at = std::int64_t(z0) * dims.x() * dims.y() * std::int64_t(sampleBytes(mType));
+        mBuffer.resize(bytes);
+        bool ok = true;
+        if (mGz) {
+            if (at < mPosition) ok = gzrewind(mGz) == 0, mPosition = 0;
+            while (ok && mPosition < at) { // skip forward by decompressing
+                const int skip = int(std::min<std::int64_t>(at - mPosition, std::int64_t(bytes)));
+                ok = gzread(mGz, mBuffer.data(), unsigned(skip)) == skip;
+                mPosition += skip;
+            }
+            ok = ok && gzread(mGz, mBuffer.data(), unsigned(bytes)) == int(bytes);
+        } else {
+            ok = (at == mPosition || std::fseek(mFile, mStart + long(at), SEEK_SET) == 0)
+                && std::fread(mBuffer.data(), 1, bytes, mFile) == bytes;
+        }
+        if (!ok) {
+            mPosition = -1;
+            throw InputError("cannot read the data of '" + mPath + "': slices " + std::to_string(z0) + ".."
+                + std::to_string(z0 + count - 1) + " of " + std::to_string(dims.z()) + " are missing or damaged");
+        }
+        mPosition = at + std::int64_t(bytes);
+        decodeSamples(mBuffer.data(), n, mType, mBigEndian, 1.0, 0.0, out);
+    }
+
+private:
+    std::string mPath;
+    std::FILE* mFile; // owned by the NrrdIoState
+    gzFile mGz = nullptr;
+    long mStart = 0;
+    std::int64_t mPosition = -1;
+    SampleType mType;
+    bool mBigEndian;
+    std::vector<char> mBuffer;
+};
+
 } // namespace
 
 LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
@@ -86,6 +172,7 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
     std::unique_ptr<Nrrd, NrrdNuke> nrrd(nrrdNew());
     std::unique_ptr<NrrdIoState, IoStateNix> io(nrrdIoStateNew());
     nrrdIoStateSet(io.get(), nrrdIoStateSkipData, AIR_TRUE);
+    nrrdIoStateSet(io.get(), nrrdIoStateKeepNrrdDataFileOpen, AIR_TRUE);
     if (nrrdLoad(nrrd.get(), path.c_str(), io.get()))
         throw InputError("'" + path + "' is not a readable NRRD file: " + teemError());
     const Nrrd& n = *nrrd;
@@ -121,13 +208,19 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
         geometry = "NRRD spacings";
     }
 
+    const std::string encoding = io->encoding ? io->encoding->name : "raw";
+    const std::string name = fs::path(path).stem().string();
+    const std::string what = fs::path(path).filename().string() + ": NRRD " + toString(*type) + " (" + encoding + ")";
+    if (io->dataFile && (encoding == "raw" || encoding == "gzip")) {
+        const Coord size(int(n.axis[0].size), int(n.axis[1].size), int(n.axis[2].size));
+        NrrdStreamSlices source(path, io->dataFile, encoding == "gzip", io->endian == airEndianBig, *type, size,
+            io->byteSkip);
+        return loadScan(source, request, name, affine, geometry, what, interrupter);
+    }
     nrrd.reset(nrrdNew());
     if (nrrdLoad(nrrd.get(), path.c_str(), nullptr))
         throw InputError("cannot read the data of '" + path + "': " + teemError());
     NrrdSlices source(*nrrd, *type);
-    const std::string name = fs::path(path).stem().string();
-    const std::string what = fs::path(path).filename().string() + ": NRRD " + toString(*type) + " ("
-        + (io->encoding ? io->encoding->name : "raw") + ")";
     return loadScan(source, request, name, affine, geometry, what, interrupter);
 }
 
