@@ -31,6 +31,8 @@ void captureError(const char* module, const char* format, va_list args)
     char text[512];
     std::vsnprintf(text, sizeof(text), format, args);
     tLastTiffError = (module ? std::string(module) + ": " : std::string()) + text;
+    for (char& c : tLastTiffError)
+        if (c == '\n' || c == '\r') c = ' '; // the InputError is one line
 }
 void ignoreWarning(const char*, const char*, va_list) {}
 
