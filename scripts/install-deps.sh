@@ -10,7 +10,7 @@ packages=(
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
   python3-openimageio hyperfine
-  python3-paraview python3-nibabel python3-pydicom xvfb
+  python3-paraview python3-nibabel python3-pydicom python3-tifffile xvfb
   blender
 )
 missing=()

@@ -82,9 +82,6 @@ def reference(isouq_cli, tmp_path_factory):
 
 # ---- NIfTI ------------------------------------------------------------------------------
 
-nib = pytest.importorskip("nibabel")
-
-
 @pytest.mark.parametrize("kind, suffix, dtype", [
     ("nifti1", ".nii", np.uint8), ("nifti1", ".nii.gz", np.int16), ("nifti2", ".nii", np.float32),
     ("nifti2", ".nii.gz", np.float64), ("nifti1", ".nii", np.int8), ("nifti1", ".nii.gz", np.uint16),
@@ -92,6 +89,7 @@ nib = pytest.importorskip("nibabel")
 ])
 @pytest.mark.parametrize("form", ["sform", "qform"])
 def test_nifti_is_the_raw_mesh_moved_by_its_affine(isouq_cli, tmp_path, reference, kind, suffix, dtype, form):
+    nib = pytest.importorskip("nibabel")
     cls = nib.Nifti1Image if kind == "nifti1" else nib.Nifti2Image
     image = cls(blobs().astype(dtype), None, dtype=dtype)
     if form == "sform":
@@ -114,6 +112,7 @@ def test_nifti_is_the_raw_mesh_moved_by_its_affine(isouq_cli, tmp_path, referenc
 
 def test_nifti_scaling_is_applied(isouq_cli, tmp_path, reference):
     """Stored = 2 (value + 100) as int16 with scl_slope 0.5, scl_inter -100: isouq meshes the value."""
+    nib = pytest.importorskip("nibabel")
     stored = (2 * (blobs() + 100)).astype(np.int16)
     assert np.array_equal(0.5 * stored - 100, blobs())
     nib.save(nib.Nifti1Image(stored, AFFINE, dtype=np.int16), tmp_path / "scaled.nii")
@@ -131,6 +130,7 @@ def test_nifti_scaling_is_applied(isouq_cli, tmp_path, reference):
 
 def test_nifti_from_debian_nibabel_data(isouq_cli, tmp_path):
     """anatomical.nii of python3-nibabel's test data: a real MRI, big-endian int16, LAS sform."""
+    nib = pytest.importorskip("nibabel")
     path = Path(nib.__file__).parent / "tests" / "data" / "anatomical.nii"
     if not path.exists():
         pytest.skip(f"{path} is not installed")
@@ -146,6 +146,7 @@ def test_nifti_from_debian_nibabel_data(isouq_cli, tmp_path):
 
 
 def test_nifti_without_orientation_uses_the_voxel_sizes(isouq_cli, tmp_path, reference):
+    nib = pytest.importorskip("nibabel")
     nib.save(nib.Nifti1Image(blobs().astype(np.float32), np.diag([0.5, 0.75, 2.0, 1.0])), tmp_path / "plain.nii")
     data = bytearray((tmp_path / "plain.nii").read_bytes())
     data[252:256] = np.array([0, 0], "<i2").tobytes()  # qform_code, sform_code (NIfTI-1 offsets)
@@ -168,6 +169,7 @@ def assert_one_error_line(cli, tmp_path, source, *words, args=("--isovalue", ISO
 
 
 def test_bad_nifti_files_give_one_line(isouq_cli, tmp_path):
+    nib = pytest.importorskip("nibabel")
     good = tmp_path / "good.nii"
     nib.save(nib.Nifti1Image(blobs().astype(np.int16), AFFINE), good)
     data = good.read_bytes()
@@ -291,9 +293,6 @@ def test_bad_nrrd_files_give_one_line(isouq_cli, tmp_path):
 
 # ---- TIFF stacks ------------------------------------------------------------------------
 
-tifffile = pytest.importorskip("tifffile")
-
-
 def zyx(dtype):
     return np.ascontiguousarray(blobs().transpose(2, 1, 0).astype(dtype))  # pages, rows, columns
 
@@ -303,6 +302,7 @@ def zyx(dtype):
     (np.int16, {"compression": "zlib", "predictor": True}), (np.float64, {}), (np.int32, {"tile": (16, 16)}),
 ])
 def test_multipage_tiff_is_the_raw_mesh(isouq_cli, tmp_path, reference, dtype, options):
+    tifffile = pytest.importorskip("tifffile")
     path = tmp_path / "stack.tif"
     tifffile.imwrite(path, zyx(dtype), **options)
     ply, summary = mesh(isouq_cli, tmp_path, path, "tif", "--isovalue", ISOVALUE)
@@ -314,6 +314,7 @@ def test_multipage_tiff_is_the_raw_mesh(isouq_cli, tmp_path, reference, dtype, o
 
 
 def test_folder_of_numbered_slices_sorts_by_number(isouq_cli, tmp_path, reference):
+    tifffile = pytest.importorskip("tifffile")
     folder = tmp_path / "slices"
     folder.mkdir()
     for z, page in enumerate(zyx(np.uint16)):
@@ -325,6 +326,7 @@ def test_folder_of_numbered_slices_sorts_by_number(isouq_cli, tmp_path, referenc
 
 
 def test_imagej_tiff_spacing(isouq_cli, tmp_path, reference):
+    tifffile = pytest.importorskip("tifffile")
     path = tmp_path / "imagej.tif"
     tifffile.imwrite(path, zyx(np.uint16), imagej=True, resolution=(1 / 0.5, 1 / 0.75),
                      metadata={"spacing": 2.0, "unit": "um"})
@@ -335,6 +337,7 @@ def test_imagej_tiff_spacing(isouq_cli, tmp_path, reference):
 
 
 def test_bad_tiff_stacks_give_one_line(isouq_cli, tmp_path):
+    tifffile = pytest.importorskip("tifffile")
     tifffile.imwrite(tmp_path / "good.tif", zyx(np.uint16))
     data = (tmp_path / "good.tif").read_bytes()
     (tmp_path / "cut.tif").write_bytes(data[:len(data) // 2])
@@ -356,9 +359,6 @@ def test_bad_tiff_stacks_give_one_line(isouq_cli, tmp_path):
 
 
 # ---- DICOM series -----------------------------------------------------------------------
-
-pydicom = pytest.importorskip("pydicom")
-
 
 def write_series(folder, dtype=np.int16, slope=0.5, intercept=-1024.0, positions=None, series_uid=None,
                  shape=SHAPE, values=None):
@@ -406,6 +406,7 @@ def write_series(folder, dtype=np.int16, slope=0.5, intercept=-1024.0, positions
 @pytest.mark.parametrize("dtype, slope, intercept", [(np.int16, 0.5, -1024.0), (np.uint16, 1.0, 0.0),
                                                      (np.uint8, 1.0, 0.0)])
 def test_dicom_series_is_the_raw_mesh_moved_by_its_geometry(isouq_cli, tmp_path, reference, dtype, slope, intercept):
+    pydicom = pytest.importorskip("pydicom")
     paths = write_series(tmp_path / "series", dtype, slope, intercept)
     (tmp_path / "series" / "DICOMDIR.txt").write_text("not DICOM")  # ignored
     assert pydicom.dcmread(paths[0]).pixel_array.shape == (SHAPE[1], SHAPE[0])
@@ -417,6 +418,7 @@ def test_dicom_series_is_the_raw_mesh_moved_by_its_geometry(isouq_cli, tmp_path,
 
 def test_dicom_series_with_a_tilt(isouq_cli, tmp_path, reference):
     """Gantry tilt: positions step along a vector that is not the normal; the affine follows them."""
+    pydicom = pytest.importorskip("pydicom")
     step = np.array([0.0, 0.3, 2.5])
     origin = AFFINE[:3, 3]
     write_series(tmp_path / "tilted", positions=[origin + k * step for k in range(SHAPE[2])])
@@ -427,6 +429,7 @@ def test_dicom_series_with_a_tilt(isouq_cli, tmp_path, reference):
 
 
 def test_bad_dicom_folders_give_one_line(isouq_cli, tmp_path):
+    pydicom = pytest.importorskip("pydicom")
     small = (5, 4, 3)
     values = np.arange(60, dtype=np.float64).reshape(small)
     two = tmp_path / "two_series"
@@ -457,6 +460,7 @@ def test_dicom_series_from_pydicom_test_files(isouq_cli, tmp_path, name):
     """Real scanner slices from python3-pydicom's test data (CT int16 with a rescale, MR big-endian,
     RLE-compressed and implicit VR), copied four times along the slice normal as one series; the truth
     is pydicom's own decoding of the pixels (the synthetic series above checks the sorting)."""
+    pydicom = pytest.importorskip("pydicom")
     source = Path(pydicom.__file__).parent / "data" / "test_files" / name
     if not source.exists():
         pytest.skip(f"{source} is not installed")
