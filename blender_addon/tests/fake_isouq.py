@@ -39,7 +39,9 @@ if args == ["nodes", "--json"]:
         "err_true_weno_paper", "dist_true", "dist_true_linear", "dist_true_cubic",
         "dist_true_weno", "dist_true_weno_paper", "dist_metro_linear")]
     columns += [column(name, "uint8", name) for name in ("hidden", "above", "in_box")]
-    columns += [column("compare_dist", "float32", "distance of two crossings", True),
+    columns += [column("compare_dist", "float32", "distance of two crossings", True)]
+    columns += [column(name, "uint8", f"colour {name}") for name in ("red", "green", "blue")]
+    columns += [column("quality", "float32", "the coloured measure"),
                 column("vertex_indices", "list", "triangle corners", element="face"),
                 column("hidden", "uint8", "refined face", element="face")]
     mesh = {"type": "mesh", "parms": [{"token": "method", "default": "weno",

@@ -1,6 +1,6 @@
 // isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report.
 // The options of `mesh` come from the parameter declarations of the read_volume, mesh,
-// write_ply and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
+// write_ply, color_map and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
 #include "ParmOptions.h"
 #include "ProgressInterrupter.h"
@@ -39,6 +39,9 @@ Examples:
                                                           torus-paper, marschner-lobb, teardrop,
                                                           tubey, sphere
   isouq mesh "formula:x^2+y^2+z^2-0.5" --domain -1,1 --resolution 128 -o ball.ply
+  isouq mesh field:tangle -o tangle.vtp                  VTK XML PolyData (ParaView, VTK)
+  isouq mesh field:tangle -o tangle.ply --color-by err_est
+                                                          vertex colours any viewer shows
 
 Every vertex carries the edge it lies on (edge_i edge_j edge_k edge_axis) and where each method
 puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: a failed or
@@ -199,7 +202,8 @@ int main(int argc, char** argv)
     MeshGraphRequest meshRequest;
     nlohmann::json plyParms = nlohmann::json::object(), summaryParms = plyParms;
     std::string saveGraph;
-    CLI::App* mesh = app.add_subcommand("mesh", "Extract an isosurface and write it as PLY with per-vertex attributes");
+    CLI::App* mesh = app.add_subcommand("mesh",
+        "Extract an isosurface and write it as PLY or VTP (by the extension) with per-vertex attributes");
     addParmOptions(*mesh, nodeType("read_volume"), meshRequest.read);
     mesh->get_option("INPUT")->required()->default_str("");
     addParmOptions(*mesh, nodeType("write_ply"), plyParms);
@@ -207,10 +211,11 @@ int main(int argc, char** argv)
     addParmOptions(*mesh, nodeType("mesh"), meshRequest.mesh);
     addParmOptions(*mesh, nodeType("write_summary"), summaryParms);
     mesh->get_option("--summary")->default_str("");
+    addParmOptions(*mesh, nodeType("color_map"), meshRequest.color);
     mesh->add_flag("--hidden-features", meshRequest.hiddenFeatures,
         "Also recover hidden features (paper sec. 4.2): the summary's 'hidden' block");
     addParmOptions(*mesh, nodeType("hidden_features"), meshRequest.hidden);
-    mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply)");
+    mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply or .vtp)");
     mesh->add_option("--save-graph", saveGraph,
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
     mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
@@ -272,6 +277,8 @@ int main(int argc, char** argv)
     try {
         if (*mesh) {
             meshRequest.output = plyParms.at("path");
+            plyParms.erase("path");
+            meshRequest.write = plyParms;
             meshRequest.summaryPath = summaryParms.value("path", std::string());
             if (isouq::nodes::parseFramePattern(meshRequest.read.value("input", std::string()))) {
                 if (!saveGraph.empty()) throw isouq::InputError("--save-graph is for one input, not a sequence");

@@ -1,7 +1,9 @@
 // isouq nodes: the analysis views as nodes (paper sec. 4.3, SPEC §7): threshold (C1), box
-// select (C2), method blend (C3), compare (C5/C6 data) and summary (C7). Mesh in, mesh out:
-// each adds named per-vertex columns and an info block; none reads the volume.
+// select (C2), method blend (C3), compare (C5/C6 data), color map (C4 for other viewers) and
+// summary (C7). Mesh in, mesh out: each adds named per-vertex columns and an info block; none
+// reads the volume.
 #include "NodeFamilies.h"
+#include <isouq/ColorMaps.h>
 #include <isouq/Columns.h>
 
 #include "isouq/nodes/Summary.h"
@@ -80,6 +82,38 @@ void cookThreshold(CookContext& ctx)
     out->info["threshold"] = block;
     block["cdf"] = {{"x", x}, {"percent", percent}};
     ctx.outputs["cdf"].json = block;
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
+/// C4 in the file (SPEC §10 "Formats"): `red green blue` from a colour map over a range, the
+/// 2nd to 98th percentile of the finite values unless given, and `quality` = the measure.
+void cookColorMap(CookContext& ctx)
+{
+    const ParmValues& p = ctx.parms;
+    const std::string measure = p.getString("measure");
+    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
+    std::vector<double> sorted;
+    sorted.reserve(values.size());
+    for (float v : values)
+        if (std::isfinite(v)) sorted.push_back(v);
+    std::sort(sorted.begin(), sorted.end());
+    const bool given = p.isSet("range");
+    double lo = 0.0, hi = 0.0;
+    if (given) {
+        const auto r = p.at("range").get<std::array<double, 2>>();
+        lo = r[0], hi = r[1];
+        if (!(lo < hi)) throw std::invalid_argument("parameter 'range': LO must be below HI");
+    } else if (!sorted.empty()) {
+        lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
+    }
+    const std::size_t noValue = values.size() - sorted.size();
+    if (noValue)
+        ctx.warn(std::to_string(noValue) + " vertices have no finite " + measure + ": coloured grey (128, 128, 128)");
+    const ColorMap map = *colorMapFromString(p.getString("colormap"));
+    addColorColumns(out->mesh, measure, map, lo, hi);
+    out->info["color"] = {{"measure", measure}, {"colormap", toString(map)}, {"range", {lo, hi}},
+        {"range_source", given ? "given" : "2nd and 98th percentiles"}, {"no_value", noValue}};
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
@@ -308,6 +342,25 @@ void addAnalysisNodes(std::vector<NodeType>& types)
         {{"mesh", "mesh", "The mesh with `compare_dist` (float)"},
             {"stats", "json", "Mode and {min, max, mean, rms, count} of compare_dist"}},
         cookCompare});
+
+    std::vector<std::string> colorMaps;
+    for (ColorMap m : kAllColorMaps) colorMaps.push_back(toString(m));
+    types.push_back({"color_map", "Color Map",
+        "C4 for viewers without isouq (SPEC §10 \"Formats\"): per-vertex `red green blue` (uint8) from a colour "
+        "map of a measure over a range, and `quality` (the measure, MeshLab's vertex quality), so Blender's own "
+        "PLY importer, MeshLab and Open3D show the heat map (docs/ply-format.md \"Colours\").",
+        {
+            menuParm("measure", "Measure", measureColumns(), measureColumns().front(),
+                "Per-vertex measure to colour (isouq mesh: adds red green blue quality to the PLY)", "--color-by"),
+            menuParm("colormap", "Color Map", colorMaps, colorMaps.front(),
+                "Colour map: viridis, coolwarm (diverging) or gray", "--colormap"),
+            parm("range", "Range", ParmType::Vec2, nullptr,
+                "Measure values at the two ends of the map, LO,HI (unset: the 2nd and 98th percentiles of the "
+                "finite values)",
+                "--color-range"),
+        },
+        {{"mesh", "mesh", "A mesh with the measure"}},
+        {{"mesh", "mesh", "The mesh with `red green blue` (uint8) and `quality` (float)"}}, cookColorMap});
 
     types.push_back({"summary", "Summary",
         "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the blocks of the "

@@ -98,6 +98,9 @@ void cookMesh(CookContext& ctx)
     out->info["input"] = volume.input;
     out->info["description"] = volume.description;
     out->info["isovalue_source"] = settings.isovalue == volume.isovalue ? volume.isovalueSource : "given";
+    // The input's affine (SPEC §10 "Formats"), also the PLY's `comment isouq index_to_world`.
+    out->info["index_to_world"] = out->mesh.indexToWorld;
+    if (!volume.geometry.empty()) out->info["geometry"] = volume.geometry;
     if (volume.denseBlocks > 0)
         out->info["sparse_blocks"] = {{"dense", volume.denseBlocks}, {"kept", volume.keptBlocks}};
     ctx.outputs["mesh"].mesh = std::move(out);
@@ -214,17 +217,20 @@ void cookTruth(CookContext& ctx)
 void addVolumeNodes(std::vector<NodeType>& types)
 {
     types.push_back({"read_volume", "Read Volume",
-        "Loads a .vdb grid, a raw scan, a SPEC §5 field or a formula as a sparse FloatGrid and decides the "
-        "isovalue (SPEC §8; docs/inputs.md).",
+        "Loads a .vdb grid, a raw scan, a scan with a header (NIfTI, NRRD, TIFF stack, DICOM series), a SPEC §5 "
+        "field or a formula as a sparse FloatGrid and decides the isovalue (SPEC §8, §10; docs/inputs.md).",
         {
             parm("input", "Input", ParmType::String, "field:teardrop",
-                "FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR", "INPUT"),
+                "FILE.vdb, NAME_XxYxZ_DTYPE.raw, .nii[.gz], .nrrd, .nhdr, .tif[f] or a folder (TIFF slices, one DICOM "
+                "series), field:NAME or formula:EXPR",
+                "INPUT"),
             parm("grid", "Grid", ParmType::String, nullptr, ".vdb: the float grid to read (unset: the first)", "--grid"),
             ranged(parm("dims", "Dimensions", ParmType::Int3, nullptr, ".raw: X,Y,Z (unset: from the file name)", "--dims"),
                 std::nullopt, std::make_pair(1.0, 1.0e6)),
             menuParm("dtype", "Data Type", {"uint8", "uint16", "int16", "float32", "float64"}, nullptr,
                 ".raw: sample type (unset: from the file name)", "--dtype"),
-            ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr, ".raw: voxel spacing X,Y,Z (unset: 1,1,1)", "--spacing"),
+            ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr,
+                       ".raw and TIFF: voxel spacing X,Y,Z (unset: 1,1,1, or a TIFF's ImageJ spacing)", "--spacing"),
                 std::nullopt, std::make_pair(0.0, kInf)),
             ranged(parm("resolution", "Resolution", ParmType::Int, nullptr,
                        "field:/formula:: samples per axis, both domain ends included (unset: the paper's; 64)",
