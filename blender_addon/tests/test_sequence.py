@@ -306,7 +306,7 @@ def test_bad_files_report_and_create_nothing(tmp_path):
     before = snapshot()
     with pytest.raises(RuntimeError, match="no frame number"):
         bpy.ops.isouq.import_sequence(filepath=str(tmp_path / "plain.ply"))
-    with pytest.raises(RuntimeError, match="not supported"):
+    with pytest.raises(RuntimeError, match="no vertex element"):
         bpy.ops.isouq.import_sequence(filepath=str(tmp_path / "broken.0001.ply"))
     assert scene_delta(before) == (set(), set())
 

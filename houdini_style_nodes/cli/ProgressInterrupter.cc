@@ -33,11 +33,9 @@ ProgressInterrupter::ProgressInterrupter(bool show) : mShow(show)
     for (int signal : kSignals) std::signal(signal, onSignal);
 }
 
-ProgressInterrupter::~ProgressInterrupter()
-{
-    clearLine();
-    for (int signal : kSignals) std::signal(signal, SIG_DFL);
-}
+// The handlers stay installed: a second signal while the run unwinds must still clean up and
+// exit 128 + n rather than take the default action.
+ProgressInterrupter::~ProgressInterrupter() { clearLine(); }
 
 bool ProgressInterrupter::interrupted() { return sInterrupted.load(); }
 
