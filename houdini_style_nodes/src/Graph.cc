@@ -312,7 +312,8 @@ std::vector<std::string> destinations(const Graph& graph, std::size_t n, const s
 
 } // namespace
 
-GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter)
+GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter,
+    const std::vector<std::string>& keepMeshes)
 {
     // Fail on unwritable outputs before any heavy work.
     for (const GraphNode& n : graph.nodes)
@@ -375,6 +376,9 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
             if (out.type == "json" && ctx.outputs.count(out.name))
                 result.outputs[node.id][out.name] = ctx.outputs[out.name].json;
         values[n] = std::move(ctx.outputs);
+        // A kept mesh is shared, so a later takeMesh() copies it instead of changing it.
+        if (std::find(keepMeshes.begin(), keepMeshes.end(), node.id) != keepMeshes.end() && values[n].count("mesh"))
+            result.meshes[node.id] = values[n]["mesh"].mesh;
         for (std::size_t m : freeAfter[n]) values[m].clear();
     }
     throwIfInterrupted(interrupter);

@@ -77,7 +77,7 @@ nlohmann::json meshGraph(const MeshGraphRequest& request)
     nlohmann::json summaryInputs = {{"mesh", standard}};
     if (hidden) summaryInputs["hidden"] = hiddenMesh;
     nodes.push_back(node(kMeshGraphSummary, "summary", {}, summaryInputs));
-    nodes.push_back(writer("write", request.output, request.write, standard));
+    if (!request.output.empty()) nodes.push_back(writer("write", request.output, request.write, standard));
     if (!request.hiddenOutput.empty())
         nodes.push_back(writer("write_hidden", request.hiddenOutput, request.write, hiddenMesh));
     if (!request.summaryPath.empty())

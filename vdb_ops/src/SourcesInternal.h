@@ -84,6 +84,11 @@ bool isTiffFolder(const std::string& path);
 LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // DicomSource.cc
 
 LoadedVolume loadVdb(const VolumeRequest& request);                                                // VdbSource.cc
+/// The isovalue (given, 0 for a level set, else Otsu) and description of a sparse @a grid
+/// read from @a what (a file name, a host's name); shared by .vdb and in-memory grids.
+LoadedVolume sparseVolume(openvdb::FloatGrid::Ptr grid, const VolumeRequest& request, const std::string& what);
+/// A `memory:N` input (MemorySource.cc).
+LoadedVolume loadMemory(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter);
 /// A field: or formula: input sampled at n^3 points (FieldSource.cc).
 LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const VolumeRequest& request,
     const std::string& defaultSource, openvdb::util::NullInterrupter* interrupter);

@@ -62,6 +62,7 @@ double otsuOfSource(SliceSource& source)
             }
         }
     }
+    if (!(range.min <= range.max)) throw InputError("the data has no finite value; nothing to mesh");
     if (!(range.min < range.max))
         throw InputError("constant data (every value is " + fmt(range.min) + "): no surface and no default "
                          "isovalue; nothing to mesh");

@@ -196,6 +196,13 @@ LoadedVolume loadVdb(const VolumeRequest& request)
     } catch (const openvdb::Exception& e) {
         throw InputError("cannot read '" + path + "': " + e.what());
     }
+    return sparseVolume(volume.grid, request, fs::path(path).filename().string());
+}
+
+LoadedVolume sparseVolume(openvdb::FloatGrid::Ptr grid, const VolumeRequest& request, const std::string& what)
+{
+    LoadedVolume volume;
+    volume.grid = std::move(grid);
     const bool levelSet = volume.grid->getGridClass() == openvdb::GRID_LEVEL_SET;
     if (request.isovalue) {
         volume.isovalue = *request.isovalue;
@@ -210,7 +217,7 @@ LoadedVolume loadVdb(const VolumeRequest& request)
         volume.isovalue = float(otsuOfGrid(*volume.grid));
         volume.isovalueSource = "Otsu (starting value)";
     }
-    volume.description = fs::path(path).filename().string() + ": grid '" + volume.grid->getName()
+    volume.description = what + ": grid '" + volume.grid->getName()
         + "' (" + openvdb::GridBase::gridClassToString(volume.grid->getGridClass()) + "), "
         + std::to_string(volume.grid->activeVoxelCount()) + " active voxels, voxel size "
         + fmt(volume.grid->voxelSize()[0]);

@@ -54,6 +54,7 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
         return si::loadField(makeFormulaField(input.substr(8), lo, hi),
             request.resolution.value_or(64), request, "formula default", interrupter);
     }
+    if (input.rfind("memory:", 0) == 0) return si::loadMemory(request, interrupter);
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
     if (si::endsWith(input, ".nii") || si::endsWith(input, ".nii.gz")) return si::loadNifti(request, interrupter);

@@ -7,7 +7,8 @@
 // field, formula) are streamed in slabs of 8 z-slices and made sparse on the way: an 8^3
 // block becomes an active leaf only where the surface can be (KeepBlocks), the rest inactive
 // tiles, so the grid's memory follows the surface, not the bounding box. Dense grids carry the
-// data box as grid metadata (GridMetadata.h).
+// data box as grid metadata (GridMetadata.h). A host holding a volume in memory (the Python
+// module: a numpy array or a pyopenvdb grid) registers it as INPUT `memory:N` (MemoryVolume).
 #pragma once
 
 #include "isouq/AnalyticFields.h"
@@ -18,6 +19,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -71,6 +73,34 @@ struct LoadedVolume {
     std::shared_ptr<const AnalyticField> truth;
     /// Dense sources: 8^3 blocks covering the data, and those kept as leaves.
     std::size_t denseBlocks = 0, keptBlocks = 0;
+};
+
+/// A volume a host holds in memory, read by loadVolume through the INPUT its
+/// ScopedMemoryVolume names (`memory:N`), so in-memory volumes run the same graph as files.
+struct MemoryVolume {
+    std::string name; ///< the grid's name and the description's start, e.g. "numpy uint8 array"
+    /// A sparse grid used as is (shared, neither copied nor densified), as a .vdb grid is.
+    openvdb::FloatGrid::Ptr grid;
+    /// Else a dense X*Y*Z array, sparsified as a .raw scan is (same slabs, KeepBlocks, Otsu):
+    /// readSlices(z0, count, out) fills out[x + X*(y + Y*(z - z0))] for z in [z0, z0 + count),
+    /// called from the loading thread only; index (0,0,0) sits at @a origin, voxels are
+    /// @a spacing apart (world = origin + spacing * index).
+    openvdb::Coord dims;
+    std::function<void(int z0, int count, float* out)> readSlices;
+    openvdb::Vec3d spacing{1.0}, origin{0.0};
+};
+
+/// Registers a MemoryVolume for as long as this object lives; input() is its INPUT.
+class ScopedMemoryVolume {
+public:
+    explicit ScopedMemoryVolume(std::shared_ptr<const MemoryVolume> volume);
+    ~ScopedMemoryVolume();
+    ScopedMemoryVolume(const ScopedMemoryVolume&) = delete;
+    ScopedMemoryVolume& operator=(const ScopedMemoryVolume&) = delete;
+    const std::string& input() const { return mInput; }
+
+private:
+    std::string mInput;
 };
 
 /// Loads @a request.input as a FloatGrid and decides the isovalue before sparsifying.

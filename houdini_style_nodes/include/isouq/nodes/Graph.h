@@ -57,11 +57,15 @@ struct GraphResult {
     std::vector<std::string> written;  ///< committed files, in order
     std::vector<std::string> warnings; ///< one line each
     nlohmann::json outputs = nlohmann::json::object(); ///< per node id, its json outputs
+    /// Per node id named in runGraph's @a keepMeshes, its mesh output (hosts that use the mesh
+    /// in memory: the Python module, the Blender add-on).
+    std::map<std::string, std::shared_ptr<const MeshData>> meshes;
 };
 
 /// Cooks every node in order, then commits the pending writes. Interruption or a failing
 /// node leaves nothing written (and existing files untouched).
 /// @throw InputError naming the node, IoError, InterruptedError.
-GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter = nullptr);
+GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter = nullptr,
+    const std::vector<std::string>& keepMeshes = {});
 
 } // namespace isouq::nodes

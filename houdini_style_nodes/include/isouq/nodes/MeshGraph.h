@@ -18,7 +18,8 @@ struct MeshGraphRequest {
     nlohmann::json color = nlohmann::json::object();  ///< color_map parameters; with `measure` set, both
                                                       ///< meshes are coloured before they are written
     bool hiddenFeatures = false; ///< also recover hidden features (SPEC §4): the summary's `hidden` block
-    std::string output;          ///< the mesh: write_vtp for a .vtp path, else write_ply
+    std::string output;          ///< the mesh: write_vtp for a .vtp path, else write_ply ("" for none:
+                                 ///< a host keeps the mesh in memory, runGraph keepMeshes)
     std::string hiddenOutput;    ///< the hidden-feature mesh ("" for none; implies hiddenFeatures)
     std::string summaryPath;     ///< the SPEC §8 summary ("" for none)
 };

@@ -1,0 +1,374 @@
+// isouq Python module, native part `isouq._core` (SPEC §10 "Python"; STYLE "Python binding";
+// docs/python.md). A thin layer over the node runner: the package `isouq` (python/isouq) builds
+// the same mesh graph as `isouq mesh` and runs it here. In-memory volumes (numpy arrays,
+// pyopenvdb grids) enter the graph as `memory:N` inputs (VolumeSources.h MemoryVolume). Every
+// run happens on a worker thread with the GIL released while the calling thread polls for
+// Ctrl-C, which cancels the run through its interrupter.
+#include <isouq/Errors.h>
+#include <isouq/MeshIO.h>
+#include <isouq/VolumeSources.h>
+#include <isouq/nodes/Graph.h>
+#include <isouq/nodes/MeshGraph.h>
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#ifdef ISOUQ_WITH_PYOPENVDB
+#include <openvdb/python/pyopenvdb.h>
+#endif
+
+#include <openvdb/Exceptions.h>
+#include <tbb/task_arena.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <exception>
+#include <filesystem>
+#include <future>
+#include <thread>
+
+namespace py = pybind11;
+namespace nodes = isouq::nodes;
+
+namespace {
+
+/// Cancels a run once the calling thread saw KeyboardInterrupt (STYLE "Interrupters").
+class CancelInterrupter final : public openvdb::util::NullInterrupter {
+public:
+    bool wasInterrupted(int = -1) override { return mCancel.load(std::memory_order_relaxed); }
+    void cancel() { mCancel = true; }
+
+private:
+    std::atomic<bool> mCancel{false};
+};
+
+/// Runs @a work on a worker thread (in a TBB arena of @a threads, 0 for all cores) with the
+/// GIL released; every 20 ms the caller takes the GIL back to run Python's signal handlers
+/// (PyErr_CheckSignals: only the main thread has any), and a raised KeyboardInterrupt cancels
+/// the work, which ends within one interrupter check. C++ errors come back as they were thrown.
+template <typename Work>
+auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)))
+{
+    using Result = decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)));
+    CancelInterrupter interrupter;
+    std::packaged_task<Result()> task([&] {
+        tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+        return arena.execute([&] { return work(&interrupter); });
+    });
+    std::future<Result> done = task.get_future();
+    bool interrupted = false;
+    {
+        py::gil_scoped_release release;
+        std::thread worker(std::move(task));
+        while (done.wait_for(std::chrono::milliseconds(20)) != std::future_status::ready) {
+            if (interrupted) continue;
+            py::gil_scoped_acquire acquire;
+            if (PyErr_CheckSignals() != 0) {
+                interrupted = true;
+                interrupter.cancel();
+            }
+        }
+        worker.join();
+    }
+    if (interrupted) {
+        try {
+            (void)done.get(); // the cancelled run's own error, if any, gives way to the signal
+        } catch (...) {
+        }
+        throw py::error_already_set();
+    }
+    return done.get();
+}
+
+py::object toPython(const nlohmann::json& value)
+{
+    return py::module_::import("json").attr("loads")(value.dump());
+}
+
+nlohmann::json fromPython(const py::handle& value)
+{
+    return nlohmann::json::parse(py::module_::import("json").attr("dumps")(value).cast<std::string>());
+}
+
+/// A mesh a run kept: numpy views of its storage keep this object (and so the mesh) alive.
+struct MeshHandle {
+    std::shared_ptr<const nodes::MeshData> data;
+};
+
+/// A read-only numpy view of @a count rows of @a width values of T at @a ptr, owned by @a owner.
+template <typename T>
+py::array view(const T* ptr, std::size_t count, std::size_t width, py::handle owner)
+{
+    std::vector<py::ssize_t> shape{py::ssize_t(count)}, strides{py::ssize_t(sizeof(T) * width)};
+    if (width > 1) {
+        shape.push_back(py::ssize_t(width));
+        strides.push_back(py::ssize_t(sizeof(T)));
+    }
+    py::array a(py::dtype::of<T>(), shape, strides, count ? ptr : nullptr, count ? owner : py::handle());
+    py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+    return a;
+}
+
+py::dict columnsOf(const isouq::AttributeTable& table, py::handle owner)
+{
+    py::dict out;
+    for (const isouq::Attribute& column : table.columns())
+        std::visit([&](const auto& values) { out[py::str(column.name)] = view(values.data(), values.size(), 1, owner); },
+            column.data);
+    return out;
+}
+
+/// Cooks one node outside a graph (the context a direct cook gets, Node.h) with @a given
+/// parameters over the declared defaults; @a mesh feeds its "mesh" input.
+nodes::CookContext cookAlone(const std::string& type, const nlohmann::json& given,
+    std::vector<nodes::PendingWrite>* writes, std::vector<std::string>* warnings, const nodes::NodeValue* mesh,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    const nodes::NodeType* t = nodes::findNodeType(type);
+    nlohmann::json values = nlohmann::json::object();
+    for (const nodes::ParmSpec& spec : t->parms) values[spec.token] = given.value(spec.token, spec.defaultValue);
+    nodes::CookContext ctx;
+    ctx.nodeId = type;
+    ctx.parms = nodes::ParmValues(values);
+    ctx.writes = writes;
+    ctx.warnings = warnings;
+    ctx.interrupter = interrupter;
+    if (mesh) ctx.inputs["mesh"] = mesh;
+    t->cook(ctx);
+    return ctx;
+}
+
+/// The CLI's writer of a path (MeshGraph.cc: write_vtp for .vtp, else write_ply), atomic.
+void writeMesh(const MeshHandle& handle, const std::string& path, const std::string& format)
+{
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    const bool vtp = ext == ".vtp";
+    const std::string normal = std::filesystem::path(path).lexically_normal().string();
+    nlohmann::json parms = {{"path", normal}};
+    if (!vtp) parms["format"] = format;
+    nodes::NodeValue input;
+    input.mesh = handle.data;
+    py::gil_scoped_release release;
+    isouq::checkWritable(normal);
+    std::vector<nodes::PendingWrite> writes;
+    cookAlone(vtp ? "write_vtp" : "write_ply", parms, &writes, nullptr, &input, nullptr);
+    isouq::OutputBatch batch;
+    for (const nodes::PendingWrite& w : writes) w.stage(batch);
+    batch.commit();
+}
+
+/// What run() hands back: json outputs, files written, warnings, and the kept meshes.
+py::dict resultOf(nodes::GraphResult result)
+{
+    py::dict out;
+    out["outputs"] = toPython(result.outputs);
+    out["written"] = py::cast(result.written);
+    out["warnings"] = py::cast(result.warnings);
+    py::dict meshes;
+    for (auto& [id, mesh] : result.meshes) meshes[py::str(id)] = py::cast(MeshHandle{mesh});
+    out["meshes"] = meshes;
+    return out;
+}
+
+/// Runs a graph document (a dict) or file (a path) and keeps the meshes of @a keep.
+py::dict run(const py::object& graph, const std::vector<std::string>& keep, int threads, const std::string& outputDir)
+{
+    nodes::GraphOptions options;
+    options.outputDir = outputDir;
+    nodes::Graph parsed;
+    if (py::isinstance<py::dict>(graph)) {
+        parsed = nodes::parseGraph(fromPython(graph), options);
+    } else {
+        const std::string path = py::str(py::module_::import("os").attr("fspath")(graph));
+        py::gil_scoped_release release;
+        parsed = nodes::loadGraph(path, options);
+    }
+    if (!outputDir.empty()) std::filesystem::create_directories(outputDir);
+    return resultOf(runCancellable(threads,
+        [&](openvdb::util::NullInterrupter* interrupter) { return nodes::runGraph(parsed, interrupter, keep); }));
+}
+
+// --- in-memory volumes ---------------------------------------------------------------------
+
+/// A registered `memory:N` input and what keeps its storage alive (the numpy array).
+struct MemoryHandle {
+    std::unique_ptr<isouq::ScopedMemoryVolume> scope;
+    py::object keepAlive;
+    std::string input() const { return scope->input(); }
+};
+
+/// Slices of a 3D array a[z, y, x] of T with byte strides (any layout: views, Fortran order,
+/// negative strides), converted to float as the .raw reader converts its samples.
+template <typename T>
+std::function<void(int, int, float*)> sliceReader(const char* base, std::array<py::ssize_t, 3> strides, openvdb::Coord dims)
+{
+    return [=](int z0, int count, float* out) {
+        for (int z = z0; z < z0 + count; ++z)
+            for (int y = 0; y < dims.y(); ++y) {
+                const char* row = base + z * strides[0] + y * strides[1];
+                if (strides[2] == py::ssize_t(sizeof(T))) {
+                    const T* v = reinterpret_cast<const T*>(row);
+                    for (int x = 0; x < dims.x(); ++x) *out++ = float(v[x]);
+                } else {
+                    for (int x = 0; x < dims.x(); ++x) *out++ = float(*reinterpret_cast<const T*>(row + x * strides[2]));
+                }
+            }
+    };
+}
+
+MemoryHandle registerArray(const py::array& array, const std::array<double, 3>& spacing,
+    const std::array<double, 3>& origin)
+{
+    if (array.ndim() != 3)
+        throw isouq::InputError("a volume array has 3 dimensions a[z, y, x], got " + std::to_string(array.ndim()));
+    const py::dtype dtype = array.dtype();
+    const char kind = dtype.kind();
+    const std::size_t size = std::size_t(dtype.itemsize());
+    if (dtype.attr("byteorder").cast<std::string>() == ">")
+        throw isouq::InputError("a big-endian array: convert it with a.astype(a.dtype.newbyteorder('='))");
+    auto volume = std::make_shared<isouq::MemoryVolume>();
+    volume->dims = openvdb::Coord(int(array.shape(2)), int(array.shape(1)), int(array.shape(0)));
+    for (int a = 0; a < 3; ++a)
+        if (array.shape(a) > py::ssize_t(std::numeric_limits<std::int32_t>::max() - 8))
+            throw isouq::InputError("an array axis of " + std::to_string(array.shape(a)) + " samples exceeds OpenVDB's index range");
+    volume->spacing = openvdb::Vec3d(spacing[0], spacing[1], spacing[2]);
+    volume->origin = openvdb::Vec3d(origin[0], origin[1], origin[2]);
+    const std::string typeName = py::str(dtype.attr("name"));
+    volume->name = "numpy " + typeName + " array";
+    const char* base = static_cast<const char*>(array.data());
+    const std::array<py::ssize_t, 3> strides{array.strides(0), array.strides(1), array.strides(2)};
+    const openvdb::Coord dims = volume->dims;
+    auto& read = volume->readSlices;
+    if (kind == 'b' || (kind == 'u' && size == 1)) read = sliceReader<std::uint8_t>(base, strides, dims);
+    else if (kind == 'i' && size == 1) read = sliceReader<std::int8_t>(base, strides, dims);
+    else if (kind == 'u' && size == 2) read = sliceReader<std::uint16_t>(base, strides, dims);
+    else if (kind == 'i' && size == 2) read = sliceReader<std::int16_t>(base, strides, dims);
+    else if (kind == 'u' && size == 4) read = sliceReader<std::uint32_t>(base, strides, dims);
+    else if (kind == 'i' && size == 4) read = sliceReader<std::int32_t>(base, strides, dims);
+    else if (kind == 'u' && size == 8) read = sliceReader<std::uint64_t>(base, strides, dims);
+    else if (kind == 'i' && size == 8) read = sliceReader<std::int64_t>(base, strides, dims);
+    else if (kind == 'f' && size == 4) read = sliceReader<float>(base, strides, dims);
+    else if (kind == 'f' && size == 8) read = sliceReader<double>(base, strides, dims);
+    else throw isouq::InputError("arrays of " + typeName + " are not volumes (use an integer or float32/float64 dtype)");
+    return MemoryHandle{std::make_unique<isouq::ScopedMemoryVolume>(volume), array};
+}
+
+/// A grid of another isouq.Volume or of pyopenvdb, shared as is (no copy, no densifying).
+MemoryHandle registerGrid(openvdb::FloatGrid::Ptr grid, const std::string& name, py::object keepAlive)
+{
+    auto volume = std::make_shared<isouq::MemoryVolume>();
+    volume->grid = std::move(grid);
+    volume->name = name;
+    return MemoryHandle{std::make_unique<isouq::ScopedMemoryVolume>(volume), std::move(keepAlive)};
+}
+
+/// A volume loaded once by the read_volume node and meshed many times (the add-on's live mode).
+struct VolumeHandle {
+    std::shared_ptr<const isouq::LoadedVolume> volume;
+};
+
+py::tuple load(const nlohmann::json& parms, int threads)
+{
+    std::vector<std::string> warnings;
+    auto volume = runCancellable(threads, [&](openvdb::util::NullInterrupter* interrupter) {
+        nodes::CookContext ctx = cookAlone("read_volume", parms, nullptr, &warnings, nullptr, interrupter);
+        return ctx.outputs.at("volume").volume;
+    });
+    return py::make_tuple(VolumeHandle{volume}, warnings);
+}
+
+} // namespace
+
+PYBIND11_MODULE(_core, m)
+{
+    m.doc() = "Native part of the isouq package (use `import isouq`).";
+    openvdb::initialize();
+
+    static py::exception<isouq::InputError> inputError(m, "InputError", PyExc_ValueError);
+    static py::exception<isouq::IoError> ioError(m, "IoError", PyExc_OSError);
+    py::register_exception_translator([](std::exception_ptr p) {
+        try {
+            if (p) std::rethrow_exception(p);
+        } catch (const isouq::InterruptedError&) {
+            PyErr_SetString(PyExc_KeyboardInterrupt, "interrupted");
+        } catch (const isouq::IoError& e) {
+            ioError(isouq::oneLine(e.what()).c_str());
+        } catch (const std::filesystem::filesystem_error& e) {
+            ioError(isouq::oneLine(e.what()).c_str());
+        } catch (const isouq::InputError& e) {
+            inputError(isouq::oneLine(e.what()).c_str());
+        } catch (const openvdb::Exception& e) {
+            inputError(isouq::oneLine(e.what()).c_str());
+        } catch (const nlohmann::json::exception& e) {
+            inputError(isouq::oneLine(e.what()).c_str());
+        }
+    });
+
+    py::class_<MeshHandle>(m, "MeshHandle")
+        .def_property_readonly("vertices", [](py::object self) {
+            const isouq::Mesh& mesh = self.cast<const MeshHandle&>().data->mesh;
+            return view(mesh.positions.empty() ? nullptr : mesh.positions[0].asPointer(), mesh.positions.size(), 3, self);
+        })
+        .def_property_readonly("triangles", [](py::object self) {
+            const isouq::Mesh& mesh = self.cast<const MeshHandle&>().data->mesh;
+            return view(mesh.triangles.empty() ? nullptr : mesh.triangles[0].asPointer(), mesh.triangles.size(), 3, self);
+        })
+        .def_property_readonly("columns", [](py::object self) {
+            return columnsOf(self.cast<const MeshHandle&>().data->mesh.vertexAttributes, self);
+        })
+        .def_property_readonly("face_columns", [](py::object self) {
+            return columnsOf(self.cast<const MeshHandle&>().data->mesh.faceAttributes, self);
+        })
+        .def_property_readonly("isovalue", [](const MeshHandle& h) { return h.data->isovalue; })
+        .def_property_readonly("method", [](const MeshHandle& h) { return h.data->method; })
+        .def_property_readonly("info", [](const MeshHandle& h) { return toPython(h.data->info); })
+        .def("write", &writeMesh, py::arg("path"), py::arg("format") = "binary");
+
+    py::class_<MemoryHandle>(m, "MemoryHandle").def_property_readonly("input", &MemoryHandle::input);
+    py::class_<VolumeHandle>(m, "VolumeHandle")
+        .def_property_readonly("isovalue", [](const VolumeHandle& v) { return v.volume->isovalue; })
+        .def_property_readonly("isovalue_source", [](const VolumeHandle& v) { return v.volume->isovalueSource; })
+        .def_property_readonly("description", [](const VolumeHandle& v) { return v.volume->description; })
+        .def_property_readonly("name", [](const VolumeHandle& v) { return v.volume->grid->getName(); });
+
+    m.def("nodes_json", [] { return nodes::nodeTypesJson().dump(); });
+    m.def("mesh_graph", [](const py::dict& request) {
+        const nlohmann::json r = fromPython(request);
+        nodes::MeshGraphRequest req;
+        req.read = r.at("read");
+        req.mesh = r.at("mesh");
+        req.hidden = r.at("hidden");
+        req.hiddenFeatures = r.at("hidden_features").get<bool>();
+        return toPython(nodes::meshGraph(req));
+    }, py::arg("request"));
+    m.def("run", &run, py::arg("graph"), py::arg("keep") = std::vector<std::string>(), py::arg("threads") = 0,
+        py::arg("output_dir") = "");
+    m.def("register_array", &registerArray, py::arg("array"), py::arg("spacing"), py::arg("origin"));
+    m.def("register_volume", [](const VolumeHandle& v, py::object owner) {
+        return registerGrid(v.volume->grid, v.volume->description, std::move(owner));
+    });
+#ifdef ISOUQ_WITH_PYOPENVDB
+    m.def("register_pyopenvdb", [](py::object grid) {
+        namespace bp = boost::python;
+        bp::object object(bp::handle<>(bp::borrowed(grid.ptr())));
+        bp::extract<openvdb::FloatGrid::Ptr> floatGrid(object);
+        if (!floatGrid.check()) {
+            std::string type = py::str(py::type::of(grid).attr("__name__"));
+            throw isouq::InputError("a pyopenvdb." + type + " is not a float scalar grid (use a pyopenvdb.FloatGrid)");
+        }
+        openvdb::FloatGrid::Ptr shared = floatGrid();
+        return registerGrid(shared, "pyopenvdb grid '" + shared->getName() + "'", grid);
+    });
+#endif
+    m.attr("has_pyopenvdb") =
+#ifdef ISOUQ_WITH_PYOPENVDB
+        true;
+#else
+        false;
+#endif
+    m.def("load", [](const py::dict& parms, int threads) { return load(fromPython(parms), threads); },
+        py::arg("parms"), py::arg("threads") = 0);
+}

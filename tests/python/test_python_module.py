@@ -1,0 +1,282 @@
+"""The Python module `isouq` (SPEC §10 "Python"; docs/python.md) against the CLI: a numpy array
+meshes to exactly the CLI's PLY of the same .raw bytes (every column, bit for bit), a pyopenvdb
+grid to the mesh of its .vdb path; bad input raises InputError with the CLI's one-line message;
+the GIL is released during a call and Ctrl-C cancels it within a second.
+"""
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+import _isouq_path  # noqa: E402,F401  (puts ply_io on sys.path)
+import ply_io  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def module_dir():
+    """build/python (ctest sets ISOUQ_PYTHON_DIR), holding the package isouq and its _core."""
+    return Path(os.environ.get("ISOUQ_PYTHON_DIR", REPO / "build" / "python"))
+
+
+@pytest.fixture(scope="module")
+def isouq():
+    folder = module_dir()
+    if not (folder / "isouq" / "__init__.py").is_file():
+        pytest.skip(f"no isouq Python module in {folder} (build the isouq_python target)")
+    sys.path.insert(0, str(folder))
+    import isouq as module
+    assert Path(module.__file__).resolve().parent == (folder / "isouq").resolve()
+    return module
+
+
+def bits(a):
+    """The bytes of an array in C order: equal bytes are equal floats, NaNs included."""
+    return np.ascontiguousarray(a).tobytes()
+
+
+def assert_same_mesh(m, ply):
+    """m (isouq.Mesh) equals the PLY the CLI wrote, bit for bit: positions, triangles, every
+    vertex and face column with its type."""
+    assert bits(m.vertices) == bits(ply.positions)
+    assert m.triangles.shape == (ply.face_count, 3)
+    assert np.array_equal(m.triangles.astype(np.int64), ply.triangles.astype(np.int64))
+    assert list(m.columns) == list(ply.vertex_attributes)
+    for name, values in ply.vertex_attributes.items():
+        assert m.columns[name].dtype == values.dtype, name
+        assert bits(m.columns[name]) == bits(values), name
+    assert sorted(m.face_columns) == sorted(ply.face_attributes)
+    for name, values in ply.face_attributes.items():
+        assert bits(m.face_columns[name]) == bits(values), name
+
+
+def cli_summary(isouq_cli, tmp_path, *args):
+    out, summary = tmp_path / "cli.ply", tmp_path / "cli.json"
+    cmd = [isouq_cli, "mesh", *map(str, args), "-o", str(out), "--summary", str(summary), "--quiet"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return ply_io.read_ply(out), json.loads(summary.read_text()), out
+
+
+def comparable(summary):
+    """A summary without what names the run (input, output, description) or times it."""
+    return {k: v for k, v in summary.items() if k not in ("timings_ms", "input", "output", "description")}
+
+
+@pytest.mark.parametrize("name,isovalue", [("bucky_32x32x32_uint8.raw", 51), ("fuel_64x64x64_uint8.raw", None)])
+def test_numpy_uint8_equals_cli_ply(isouq, isouq_cli, data_dir, tmp_path, name, isovalue):
+    path = data_dir / name
+    dims = [int(v) for v in name.split("_")[1].split("x")]
+    array = np.fromfile(path, np.uint8).reshape(dims[2], dims[1], dims[0])  # a[z, y, x] as the file
+    args = [path] + (["--isovalue", isovalue] if isovalue is not None else [])
+    ply, summary, cli_ply = cli_summary(isouq_cli, tmp_path, *args)
+    m = isouq.mesh(array, isovalue=isovalue)
+    assert len(m.vertices) > 1000 and m.vertices.dtype == np.float32 and m.vertices.shape[1] == 3
+    assert_same_mesh(m, ply)
+    assert comparable(m.summary) == comparable(summary)
+    # The CLI's writer: the same bytes as the CLI's file.
+    m.write(tmp_path / "py.ply")
+    assert (tmp_path / "py.ply").read_bytes() == cli_ply.read_bytes()
+    # Any layout is read in place as a[z, y, x]: a Fortran-ordered copy, a reversed view.
+    assert bits(isouq.mesh(np.asfortranarray(array), isovalue=isovalue).vertices) == bits(m.vertices)
+    reversed_z = array[::-1].copy()[::-1]  # negative z stride
+    wide = np.zeros(array.shape[:2] + (2 * array.shape[2],), np.uint8)
+    wide[:, :, ::2] = array  # x stride of 2 bytes
+    for view in (reversed_z, wide[:, :, ::2]):
+        assert not view.flags.c_contiguous
+        assert bits(isouq.mesh(view, isovalue=isovalue).columns["err_est"]) == bits(m.columns["err_est"])
+
+
+def test_numpy_float_with_spacing_and_hidden(isouq, isouq_cli, data_dir, tmp_path):
+    """float32 skull with its spacing (SPEC §8 --spacing) and hidden features: both meshes."""
+    path = data_dir / "skull_64x64x64_float32.raw"
+    spacing = (3.94305, 3.94305, 3.65079)
+    array = np.fromfile(path, "<f4").reshape(64, 64, 64)
+    hidden_ply = tmp_path / "hidden.ply"
+    ply, summary, _ = cli_summary(isouq_cli, tmp_path, path, "--isovalue", 2.9, "--spacing",
+                                  ",".join(map(str, spacing)), "--hidden-features", "--hidden-out", hidden_ply)
+    m = isouq.mesh(array.astype(np.float64), isovalue=2.9, spacing=spacing, hidden_features=True)
+    assert_same_mesh(m, ply)
+    assert_same_mesh(m.hidden, ply_io.read_ply(hidden_ply))
+    assert m.hidden.summary == {k: v for k, v in summary["hidden"].items() if k != "output"}
+    assert comparable(m.summary) == comparable(summary) | {"hidden": m.hidden.summary}
+
+
+def test_origin_moves_vertices(isouq):
+    z, y, x = np.mgrid[-1:1:24j, -1:1:24j, -1:1:24j]
+    ball = (x * x + y * y + z * z).astype(np.float32)
+    base = isouq.mesh(ball, isovalue=0.5, method="cubic")
+    moved = isouq.mesh(ball, isovalue=0.5, method="cubic", origin=(10, 20, 30), spacing=(2, 2, 2))
+    assert np.allclose(moved.vertices, base.vertices * 2 + np.array([10, 20, 30], np.float32), atol=1e-4)
+    assert bits(moved.columns["t_cubic"]) == bits(base.columns["t_cubic"])
+
+
+def test_pyopenvdb_grid_equals_path(isouq, data_dir, tmp_path):
+    pyopenvdb = pytest.importorskip("pyopenvdb")
+    if not isouq._core.has_pyopenvdb:
+        pytest.skip("isouq built without Boost.Python / pyopenvdb.h")
+    path = str(data_dir / "smoke.vdb")
+    grid = pyopenvdb.read(path, "density")
+    before = grid.activeVoxelCount()
+    from_grid = isouq.mesh(grid, isovalue=0.1)
+    from_path = isouq.mesh(path, isovalue=0.1, grid="density")
+    assert len(from_grid.vertices) > 1000
+    for a, b in [(from_grid.vertices, from_path.vertices), (from_grid.triangles, from_path.triangles)]:
+        assert bits(a) == bits(b)
+    assert list(from_grid.columns) == list(from_path.columns)
+    for name in from_path.columns:
+        assert bits(from_grid.columns[name]) == bits(from_path.columns[name]), name
+    assert comparable(from_grid.summary) == comparable(from_path.summary)
+    assert grid.activeVoxelCount() == before  # shared, not changed
+    with pytest.raises(isouq.InputError, match="not a float scalar grid"):
+        isouq.mesh(pyopenvdb.Vec3SGrid())
+
+
+def test_loaded_volume_meshes_every_isovalue(isouq, data_dir):
+    """load() once (keep=non_constant), mesh at another isovalue: the mesh of the file there."""
+    path = str(data_dir / "fuel_64x64x64_uint8.raw")
+    volume = isouq.load(path)
+    assert volume.isovalue_source.startswith("Otsu")
+    for k in (40.0, 90.0):
+        a, b = isouq.mesh(volume, isovalue=k), isouq.mesh(path, isovalue=k)
+        assert bits(a.vertices) == bits(b.vertices) and bits(a.triangles) == bits(b.triangles)
+        assert bits(a.columns["err_est"]) == bits(b.columns["err_est"])
+
+
+def cli_error(isouq_cli, *args):
+    done = subprocess.run([isouq_cli, *map(str, args)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    line = done.stderr.strip()
+    assert line.startswith("isouq: error: ")
+    return line[len("isouq: error: "):]
+
+
+def test_bad_input_raises_one_line(isouq, isouq_cli, tmp_path):
+    missing = tmp_path / "nothing_8x8x8_uint8.raw"
+    cases = {
+        "2D array": (lambda: isouq.mesh(np.zeros((4, 4), np.float32)), "3 dimensions"),
+        "missing file": (lambda: isouq.mesh(str(missing)), "no such file"),
+        "all NaN": (lambda: isouq.mesh(np.full((9, 9, 9), np.nan, np.float32)), "finite"),
+        "all NaN, isovalue given": (lambda: isouq.mesh(np.full((9, 9, 9), np.nan, np.float32), isovalue=0), "finite"),
+        "unknown method": (lambda: isouq.mesh("field:tangle", resolution=16, method="spline"), "method"),
+        "complex array": (lambda: isouq.mesh(np.zeros((4, 4, 4), np.complex64)), "not volumes"),
+        "unknown field": (lambda: isouq.mesh("field:nope"), "unknown field"),
+    }
+    for what, (call, words) in cases.items():
+        with pytest.raises(isouq.InputError) as e:
+            call()
+        assert isinstance(e.value, ValueError)
+        message = str(e.value)
+        assert "\n" not in message and words in message, f"{what}: {message}"
+    # The CLI's own line for the same input.
+    with pytest.raises(isouq.InputError) as e:
+        isouq.mesh(str(missing))
+    assert str(e.value) == cli_error(isouq_cli, "mesh", missing, "-o", tmp_path / "x.ply")
+    with pytest.raises(isouq.InputError) as e:
+        isouq.mesh("field:nope")
+    assert str(e.value) == cli_error(isouq_cli, "mesh", "field:nope", "-o", tmp_path / "x.ply")
+    nan = tmp_path / "nan_9x9x9_float32.raw"
+    np.full((9, 9, 9), np.nan, "<f4").tofile(nan)
+    with pytest.raises(isouq.InputError) as e:
+        isouq.mesh(np.fromfile(nan, "<f4").reshape(9, 9, 9))
+    assert str(e.value) == cli_error(isouq_cli, "mesh", nan, "-o", tmp_path / "x.ply")
+    # write(): an unwritable folder is an IoError (an OSError) and leaves nothing.
+    m = isouq.mesh("field:tangle", resolution=16)
+    with pytest.raises(isouq.IoError):
+        m.write(tmp_path / "no" / "such" / "folder.ply")
+
+
+def test_other_thread_runs_during_a_long_call(isouq):
+    ticks, stop = [], threading.Event()
+
+    def count():
+        while not stop.is_set():
+            ticks.append(time.perf_counter())
+            time.sleep(0.005)
+
+    t = threading.Thread(target=count)
+    t.start()
+    try:
+        start = time.perf_counter()
+        m = isouq.mesh("field:tangle", resolution=160)
+        elapsed = time.perf_counter() - start
+    finally:
+        stop.set()
+        t.join()
+    during = [x for x in ticks if start < x < start + elapsed]
+    assert elapsed > 0.3 and len(m.vertices) > 0
+    # The counter ran all along: at least half the ticks a free 5 ms loop would make.
+    assert len(during) > 0.5 * elapsed / 0.0055, (len(during), elapsed)
+
+
+def test_keyboard_interrupt_cancels_within_a_second(isouq, tmp_path):
+    script = textwrap.dedent(f"""
+        import os, signal, sys, threading, time
+        sys.path.insert(0, {str(module_dir())!r})
+        import isouq
+        sent = []
+        def interrupt():
+            sent.append(time.perf_counter())
+            os.kill(os.getpid(), signal.SIGINT)
+        threading.Timer(0.5, interrupt).start()
+        start = time.perf_counter()
+        try:
+            isouq.mesh("formula:sin(9*x)*sin(9*y)*sin(9*z)", resolution=700)
+        except KeyboardInterrupt:
+            print(f"cancelled {{time.perf_counter() - sent[0]:.3f}}")
+            sys.exit(0)
+        print(f"finished after {{time.perf_counter() - start:.1f}} s: no cancellation")
+        sys.exit(1)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    latency = float(done.stdout.split()[1])
+    assert latency < 1.0, done.stdout
+
+
+def test_nodes_and_run(isouq, tmp_path):
+    doc = isouq.nodes()
+    assert {"read_volume", "mesh", "summary"} <= {n["type"] for n in doc["nodes"]}
+    assert "err_est" in {c["name"] for c in doc["columns"]}
+    graph = {"nodes": [
+        {"id": "read", "type": "read_volume", "parms": {"input": "field:teardrop", "resolution": 32}},
+        {"id": "mesh", "type": "mesh", "inputs": {"volume": "read"}},
+        {"id": "sum", "type": "summary", "inputs": {"mesh": "mesh"}},
+        {"id": "save", "type": "write_ply", "parms": {"path": "t.ply"}, "inputs": {"mesh": "mesh"}}]}
+    result = isouq.run(graph, keep=["mesh"], output_dir=tmp_path)
+    assert result.written == [str(tmp_path / "t.ply")]
+    assert result.outputs["sum"]["summary"]["vertices"] == len(result.meshes["mesh"].vertices)
+    path = tmp_path / "g.json"
+    path.write_text(json.dumps(graph))
+    again = isouq.run(path, output_dir=tmp_path / "again")
+    assert (tmp_path / "again" / "t.ply").read_bytes() == (tmp_path / "t.ply").read_bytes()
+    assert again.meshes == {}
+    with pytest.raises(isouq.InputError, match="unknown node type"):
+        isouq.run({"nodes": [{"id": "x", "type": "nope"}]})
+
+
+def test_arrays_are_views(isouq):
+    m = isouq.mesh("field:tangle", resolution=24)
+    a = m.columns["err_est"]
+    assert not a.flags.writeable and not a.flags.owndata
+    del m  # the arrays keep the mesh alive
+    assert np.isfinite(a).any()
+
+
+def test_example_notebook(isouq, tmp_path):
+    """examples/python/threshold_err_est.py meshes an array, thresholds err_est, writes a PNG."""
+    env = dict(os.environ, PYTHONPATH=str(module_dir()), MPLBACKEND="Agg")
+    png = tmp_path / "err_est.png"
+    done = subprocess.run([sys.executable, str(REPO / "examples" / "python" / "threshold_err_est.py"), str(png)],
+                          capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20000
+    assert "above the 90th percentile" in done.stdout
