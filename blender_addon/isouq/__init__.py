@@ -13,12 +13,12 @@ bl_info = {
 
 if "bpy" in locals():
     import importlib
-    for _module in (ply_io, frames, analysis, plots, pipeline, attributes, materials, props,
-                    views, sequence, render, ui, operators):
+    for _module in (ply_io, frames, analysis, plots, pipeline, native, attributes, materials, props,
+                    views, live, sequence, render, ui, operators):
         importlib.reload(_module)
 else:
-    from . import (ply_io, frames, analysis, plots, pipeline, attributes, materials, props,
-                   views, sequence, render, ui, operators)
+    from . import (ply_io, frames, analysis, plots, pipeline, native, attributes, materials,
+                   props, views, live, sequence, render, ui, operators)
 
 import bpy
 

@@ -1,6 +1,7 @@
 # Operators: import (File > Import), the pipeline run (background subprocess + modal timer), the
 # analysis views C1..C7 (views.py) and rendering. Errors go to self.report and return CANCELLED.
 
+import json
 import os
 
 import bpy
@@ -10,7 +11,7 @@ import tempfile
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from . import frames, pipeline, ply_io, props, render, sequence, ui, views
+from . import frames, live, native, pipeline, ply_io, props, render, sequence, ui, views
 
 _EXPECTED = (views.ViewError, ply_io.PlyError, frames.SequenceError, ValueError, OSError)
 
@@ -158,15 +159,19 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             raise ValueError(f"input file not found: {path}")
         prefs = _preferences(context)
         binary, tried = pipeline.find_binary(prefs.binary if prefs else "")
-        if binary is None:
+        # One input: in process when the isouq module imports (native.py), else the CLI.
+        module = native.load(binary) if self._sequence is None else None
+        if binary is None and module is None:
             raise ValueError(f"isouq binary not found ({tried}); set it in the add-on preferences")
-        menu = pipeline.method_menu(binary)
+        menu = native.method_menu() if module is not None else pipeline.method_menu(binary)
         if menu is not None and s.method not in menu:
-            raise ValueError(f"this isouq binary has no method '{s.method}' (it has {', '.join(menu)})")
+            raise ValueError(f"this isouq has no method '{s.method}' (it has {', '.join(menu)})")
         request = pipeline.MeshRequest(path, s.isovalue if s.use_isovalue else None, s.method,
                                        s.hidden_features, s.subdivisions, grid,
                                        resolution=s.resolution)
         self._volume = volume
+        if module is not None:
+            return pipeline.NativeJob(request, module).start()
         if self._sequence is None:
             return pipeline.Job(request, binary).start()
         seq = self._sequence
@@ -191,6 +196,8 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             if status != 0:
                 self.report({"ERROR"}, job.error_message())
                 return {"CANCELLED"}
+            if isinstance(job, pipeline.NativeJob):
+                return self._import_native(context, job)
             if isinstance(job, pipeline.SequenceJob):
                 return self._import_sequence(context, job)
             if not os.path.isfile(job.mesh_path):
@@ -232,6 +239,37 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
         _make_active(context, obj)
         self.report({"INFO"}, f"{obj.name}: {len(written.frames)} frames in "
                               f"{job.output_dir}")
+        return {"FINISHED"}
+
+    def _import_native(self, context, job):
+        """The meshes of an in-process run, straight from memory; the object remembers its
+        request, so live mode (live.py) can mesh it again."""
+        name = pipeline.input_name(job.request.input)
+        result, created = job.result, []
+        try:
+            obj = views.import_mesh(context, native.to_isouq_mesh(result), name, "MESH",
+                                    job.request.input)
+            created.append(obj)
+            obj.isouq.summary = json.dumps(result.summary)
+            if result.hidden is not None:
+                hidden = views.import_mesh(context, native.to_isouq_mesh(result.hidden),
+                                           name + "_hidden", "HIDDEN", job.request.input)
+                created.append(hidden)
+                hidden.isouq.summary = obj.isouq.summary
+                obj.isouq.partner, hidden.isouq.partner = hidden, obj
+            for o in created:
+                if self._volume is not None:
+                    o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
+        except _EXPECTED as e:
+            for o in created:
+                me = o.data
+                bpy.data.objects.remove(o)
+                bpy.data.meshes.remove(me)
+            self.report({"ERROR"}, f"isouq mesh unusable: {e}")
+            return {"CANCELLED"}
+        live.remember(obj, job.request)
+        context.view_layer.objects.active = obj
+        self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} vertices (in process)")
         return {"FINISHED"}
 
     def _import(self, context, job):

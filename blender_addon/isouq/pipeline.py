@@ -240,6 +240,58 @@ class MeshRequest:
 
 
 @dataclass
+class NativeJob:
+    """One run in process with the isouq Python module (native.load()): the same graph as
+    `isouq mesh`, on a thread (the module releases the GIL while it meshes), the meshes kept in
+    memory: no subprocess and no PLY. `result` is the module's Mesh once poll() is 0. cancel()
+    drops the result (the run ends on its own)."""
+    request: MeshRequest
+    module: object
+    result: object = None
+    error: str = ""
+    cancelled: bool = False
+
+    def start(self):
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self):
+        r = self.request
+        try:
+            self.result = self.module.mesh(
+                r.input, isovalue=r.isovalue, method=r.method or "weno",
+                hidden_features=r.hidden_features, subdivisions=r.subdivisions,
+                grid=r.grid or None, resolution=r.resolution or None, threads=r.threads)
+        except Exception as e:  # the module's InputError / IoError carry the CLI's line
+            self.error = str(e) or type(e).__name__
+
+    def poll(self):
+        if self._thread.is_alive():
+            return None
+        return 0 if self.result is not None else 2
+
+    def wait(self, timeout=None):
+        self._thread.join(timeout)
+        return self.poll()
+
+    def progress(self):
+        return None
+
+    def frames_done(self):
+        return None
+
+    def cancel(self, grace=0.0):
+        self.cancelled = True
+
+    def error_message(self):
+        return f"isouq: error: {self.error}"
+
+    def cleanup(self):
+        pass
+
+
+@dataclass
 class Job:
     """One background run. poll() -> None while running, else the exit status."""
     request: MeshRequest

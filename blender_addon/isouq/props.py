@@ -17,8 +17,13 @@ from . import pipeline
 
 
 def vocabulary(context=None, columns=None):
-    """The binary's vocabulary (pipeline.vocabulary), else that of `columns` (name -> numpy
-    type string), by default the vertex columns of the scene's isouq meshes."""
+    """The isouq module's vocabulary (native.py), else the binary's (pipeline.vocabulary), else
+    that of `columns` (name -> numpy type string), by default the vertex columns of the scene's
+    isouq meshes."""
+    from . import native
+    found = native.vocabulary()  # the module in process, when it loads: no subprocess
+    if found is not None:
+        return found
     context = context or bpy.context
     addon = context.preferences.addons.get(__package__)
     binary, _ = pipeline.find_binary(addon.preferences.binary if addon else "")
@@ -67,8 +72,15 @@ def method_items(self, context):
 
 
 def _update_threshold(self, context):
-    from . import materials
+    from . import live, materials
     materials.set_threshold(self.threshold_value, self.colour_below, self.colour_above)
+    live.schedule(context, remesh=False)
+
+
+def _update_live(self, context):
+    """Live mode (live.py): a change of isovalue or method re-meshes the live object."""
+    from . import live
+    live.schedule(context)
 
 
 def _update_heat_range(self, context):
@@ -140,10 +152,15 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
                             description="field:/formula: samples per axis (--resolution); 0: the CLI's")
     volume: PointerProperty(name="Volume", type=bpy.types.Object,
                             poll=lambda self, obj: obj.type == "VOLUME")
-    use_isovalue: BoolProperty(name="Isovalue", default=False,
+    use_isovalue: BoolProperty(name="Isovalue", default=False, update=_update_live,
                                description="Pass --isovalue (else the CLI's default)")
-    isovalue: FloatProperty(name="Isovalue", default=0.0, precision=6)
-    method: EnumProperty(name="Method", items=method_items, default=number("weno"))
+    isovalue: FloatProperty(name="Isovalue", default=0.0, precision=6, update=_update_live)
+    method: EnumProperty(name="Method", items=method_items, default=number("weno"),
+                         update=_update_live)
+    live: BoolProperty(name="Live", default=False, update=_update_live,
+                       description="Re-mesh the object meshed in process whenever the isovalue "
+                                   "or the method changes, and redo its views when the "
+                                   "threshold does (needs the isouq Python module)")
     hidden_features: BoolProperty(name="Hidden features", default=False)
     subdivisions: IntProperty(name="Subdivisions", default=4, min=2, max=16)
     grid: StringProperty(name="Grid", description="Grid name (--grid); empty: first float grid")

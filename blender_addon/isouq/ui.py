@@ -7,7 +7,7 @@ import os
 import bpy
 import bpy.utils.previews
 
-from . import pipeline
+from . import live, native, pipeline
 
 _previews = None
 _paths = {}
@@ -110,6 +110,13 @@ class VIEW3D_PT_isouq_pipeline(_Panel, bpy.types.Panel):
         if s.hidden_features:
             col.prop(s, "subdivisions")
         col.operator("isouq.run_pipeline", icon="PLAY")
+        # Live mode re-meshes in process (live.py): only with the isouq Python module.
+        row = col.row()
+        row.enabled = native.load() is not None
+        row.prop(s, "live", icon="FILE_REFRESH")
+        if s.live and live.last_timing:
+            col.label(text=f"last update {live.last_timing['total_ms']:.0f} ms, "
+                           f"{live.last_timing['vertices']} vertices")
 
 
 class VIEW3D_PT_isouq_threshold(_Panel, bpy.types.Panel):

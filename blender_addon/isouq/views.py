@@ -42,7 +42,14 @@ def import_ply(context, path, name=None, role="MESH"):
     """Reads an isouq PLY and links a new object to the active collection.
     Nothing is created when reading or checking fails (ply_io.PlyError / ValueError)."""
     mesh = ply_io.read_ply(path)
-    name = name or os.path.splitext(os.path.basename(path))[0]
+    return import_mesh(context, mesh, name or os.path.splitext(os.path.basename(path))[0], role, path)
+
+
+def import_mesh(context, mesh, name, role="MESH", source=""):
+    """Links a new object holding `mesh` (an IsouqMesh: read from a PLY, or made in process by
+    the isouq module, native.to_isouq_mesh) to the active collection. Nothing is created when
+    checking fails (ValueError)."""
+    path = source
     vocabulary = prepare_mesh(context, mesh)
     columns = mesh.vertex_attributes
     me = attributes.build_mesh(name, mesh)

@@ -17,6 +17,9 @@ REAL_CLI, REAL_CLI_TRIED = pipeline.find_binary("")
 if REAL_CLI is None or os.path.samefile(REAL_CLI, FAKE):
     REAL_CLI = None
     os.environ[pipeline.ENV_BINARY] = FAKE
+# The suites written for the CLI (fake and real) run it as a subprocess; test_native_live.py
+# turns the in-process module (native.py) back on.
+os.environ["ISOUQ_NATIVE"] = "0"
 
 
 def enable():

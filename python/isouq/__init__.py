@@ -51,6 +51,13 @@ class Mesh:
         """Method that placed the vertices ("weno", "linear", ...)."""
         return self._handle.method
 
+    @property
+    def index_to_world(self):
+        """The grid's index-to-world affine, 4 x 4 float64 (world = M (i, j, k, 1)): with the
+        edge_* and t_* columns it places any method's crossing (SPEC §6, C3)."""
+        import numpy as np
+        return np.array(self._handle.info["index_to_world"], np.float64).reshape(4, 4)
+
     def write(self, path, format="binary"):
         """Writes the mesh as the CLI does (SPEC §6 PLY, or VTK XML PolyData for a .vtp path),
         atomically: a failed write leaves no file and never clobbers an existing one.
@@ -152,7 +159,7 @@ def _read_parms(source, registration, isovalue, grid, resolution, domain, spacin
 
 def mesh(source, isovalue=None, method="weno", linear_only=False, hidden_features=False,
          subdivisions=4, hidden_filter=True, threads=0, spacing=(1, 1, 1), origin=(0, 0, 0),
-         grid=None, resolution=None, domain=None):
+         grid=None, resolution=None, domain=None, summary=True):
     """Meshes `source` as `isouq mesh` does and returns a Mesh.
 
     source: a 3D numpy array a[z, y, x] of any integer or float dtype, sparsified like a
@@ -165,6 +172,8 @@ def mesh(source, isovalue=None, method="weno", linear_only=False, hidden_feature
         and TIFF paths, as --spacing).
     grid, resolution, domain: as --grid, --resolution, --domain.
     threads: worker threads, 0 for all cores.
+    summary: False skips the summary node (topology and statistics; Mesh.summary is None) for
+        interactive re-meshing; the mesh is the same.
 
         >>> m = isouq.mesh("field:tangle", resolution=32)
         >>> m.summary["method"], m.hidden is None
@@ -182,11 +191,13 @@ def mesh(source, isovalue=None, method="weno", linear_only=False, hidden_feature
     standard = summary_node["inputs"]["mesh"]
     hidden = summary_node["inputs"].get("hidden")
     keep = [standard] + ([hidden] if hidden else [])
+    if not summary:  # nothing else reads it: the graph has no writers
+        graph["nodes"].remove(summary_node)
     result = _core.run(graph, keep, int(threads))
-    summary = result["outputs"]["summary"]["summary"]
+    summary = result["outputs"]["summary"]["summary"] if summary else None
     hidden_mesh = None
     if hidden:
-        hidden_mesh = Mesh(result["meshes"][hidden], summary.get("hidden"))
+        hidden_mesh = Mesh(result["meshes"][hidden], summary.get("hidden") if summary else None)
     del registration  # the graph has run: the array or grid is no longer read
     return Mesh(result["meshes"][standard], summary, hidden_mesh)
 

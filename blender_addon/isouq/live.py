@@ -1,0 +1,118 @@
+# Live mode (docs/blender.md "Live mode"): with Scene.isouq.live on, changing the isovalue or
+# the method in the panel re-meshes the live object in process (the isouq module, native.py)
+# and replaces its mesh data in place, like Blender's Volume to Mesh modifier; changing the
+# threshold redoes its views. Changes are debounced (a timer DEBOUNCE s after the last one),
+# and the volume is loaded once per input (isouq.load, keep=non_constant: every isovalue meshes
+# as the full data), so one update is one pass of the mesher plus the copy into Blender.
+
+import json
+import time
+
+import bpy
+
+from . import attributes, native, views
+
+DEBOUNCE = 0.03                 # s after the last change before re-meshing
+VOLUME_CACHE = 2                # loaded volumes kept (input, grid, resolution)
+REQUEST_KEY = "isouq_request"   # Object custom property: the request the object was meshed with
+
+_volumes = {}                   # (input, grid, resolution) -> isouq_native.Volume, oldest first
+_pending = {"remesh": False, "views": False, "since": None}
+last_timing = {}                # the last update: load_ms, mesh_ms, blender_ms, total_ms, vertices
+
+
+def remember(obj, request):
+    """Marks `obj` as meshed in process from `request` (pipeline.MeshRequest): live mode can
+    mesh it again."""
+    obj[REQUEST_KEY] = json.dumps({"input": request.input, "grid": request.grid,
+                                   "resolution": request.resolution})
+
+
+def target(context):
+    """The object live mode updates: the active in-process isouq mesh, else the scene's first."""
+    candidates = [context.view_layer.objects.active] + list(context.scene.objects)
+    for obj in candidates:
+        if obj is not None and obj.type == "MESH" and obj.isouq.role == "MESH" and REQUEST_KEY in obj:
+            return obj
+    return None
+
+
+def schedule(context, remesh=True):
+    """Called by the property updates (props.py): re-mesh (isovalue, method) or only redo the
+    views (threshold) DEBOUNCE s after the last change."""
+    if not context.scene.isouq.live:
+        return
+    _pending["remesh"] = _pending["remesh"] or remesh
+    _pending["views"] = True
+    _pending["since"] = _pending["since"] or time.perf_counter()
+    if not bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.register(_tick, first_interval=DEBOUNCE)
+
+
+def _tick():
+    flush(bpy.context)
+    return None  # one shot
+
+
+def flush(context):
+    """Runs what schedule() queued now (the timer calls it; scripts and tests may too).
+    Returns last_timing, or None if nothing was queued."""
+    if not _pending["views"]:
+        return None
+    remesh = _pending["remesh"]
+    since = _pending["since"]
+    _pending.update(remesh=False, views=False, since=None)
+    obj = target(context)
+    if obj is None:
+        return None
+    try:
+        if remesh:
+            update(context, obj)
+        else:
+            views.reapply(context, obj)
+    except (ValueError, views.ViewError, RuntimeError) as e:
+        obj["isouq_live_error"] = str(e)
+        return None
+    last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - since)
+    return last_timing
+
+
+def volume(module, request):
+    """The loaded volume of a request (dict of remember()), loaded on first use."""
+    key = (request["input"], request["grid"], request["resolution"])
+    if key not in _volumes:
+        while len(_volumes) >= VOLUME_CACHE:
+            _volumes.pop(next(iter(_volumes)))
+        _volumes[key] = module.load(request["input"], grid=request["grid"] or None,
+                                    resolution=request["resolution"] or None)
+    return _volumes[key]
+
+
+def update(context, obj):
+    """Meshes `obj`'s volume at the panel's isovalue and method and puts the result in obj.data
+    (geometry and every attribute, in place: materials and modifiers stay), then redoes its views."""
+    module = native.load()
+    if module is None:
+        raise RuntimeError(f"live mode needs the isouq Python module ({native.error()})")
+    s = context.scene.isouq
+    start = time.perf_counter()
+    request = json.loads(obj[REQUEST_KEY])
+    vol = volume(module, request)
+    loaded = time.perf_counter()
+    isovalue = s.isovalue if s.use_isovalue else vol.isovalue
+    mesh = module.mesh(vol, isovalue=isovalue, method=s.method, summary=False)
+    meshed = time.perf_counter()
+    attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh))
+    attributes.remember_primary_positions(obj.data)
+    obj.isouq.method_shown = mesh.method
+    obj.isouq.summary = json.dumps({"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
+                                    "isovalue": float(isovalue), "method": mesh.method, "live": True})
+    if len(obj.data.vertices):
+        views.reapply(context, obj)
+    context.view_layer.update()
+    done = time.perf_counter()
+    last_timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded),
+                       blender_ms=1e3 * (done - meshed), total_ms=1e3 * (done - start),
+                       vertices=len(mesh.vertices))
+    if "isouq_live_error" in obj:
+        del obj["isouq_live_error"]

@@ -1,0 +1,153 @@
+# The isouq Python module in process (native.py) and live mode (live.py; docs/blender.md): the
+# module loads beside the add-on (both are `isouq`), "Run on a VDB" meshes without a subprocess
+# or a PLY and gives the module's own arrays, and in live mode a new isovalue or method changes
+# the object's mesh in place. Timings of slider change -> updated object are printed (and
+# written to $ISOUQ_LIVE_TIMINGS as JSON) for docs/blender.md.
+
+import json
+import os
+import subprocess
+
+import bpy
+import numpy as np
+import pytest
+
+import isouq as addon
+from isouq import attributes, live, native
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.environ.get("ISOUQ_DATA_DIR", os.path.join(HERE, "..", "..", "..", "shared", "data"))
+
+
+@pytest.fixture
+def module(monkeypatch):
+    monkeypatch.setenv(native.ENV_SWITCH, "1")
+    found = native.load()
+    if found is None:
+        pytest.skip(f"no isouq Python module: {native.error()} (build the isouq_python target)")
+    yield found
+    bpy.context.scene.isouq.live = False
+
+
+@pytest.fixture
+def no_subprocess(monkeypatch):
+    """Any subprocess the add-on would start fails the test."""
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"a subprocess was started: {args[:1]}")
+    monkeypatch.setattr(subprocess, "Popen", refuse)
+    monkeypatch.setattr(subprocess, "run", refuse)
+
+
+def arrays(obj):
+    me = obj.data
+    co = np.empty(3 * len(me.vertices), np.float32)
+    me.vertices.foreach_get("co", co)
+    tri = np.empty(3 * len(me.polygons), np.int32)
+    me.polygons.foreach_get("vertices", tri)
+    return co.reshape(-1, 3), tri.reshape(-1, 3)
+
+
+def run_in_process(context, path, **settings):
+    s = context.scene.isouq
+    s.input_path = path
+    for key, value in settings.items():
+        setattr(s, key, value)
+    assert bpy.ops.isouq.run_pipeline() == {"FINISHED"}
+    return context.view_layer.objects.active
+
+
+def test_module_loads_beside_the_addon(module):
+    assert module.__name__ == native.NAME and hasattr(module, "mesh")
+    assert hasattr(addon, "bl_info")  # `import isouq` is still the add-on
+    assert module.InputError is module._core.InputError
+
+
+def test_run_in_process_equals_the_module(module, no_subprocess, empty_scene):
+    obj = run_in_process(empty_scene, "field:tangle", resolution=32, method="cubic")
+    assert obj.isouq.role == "MESH" and live.REQUEST_KEY in obj
+    direct = module.mesh("field:tangle", resolution=32, method="cubic")
+    co, tri = arrays(obj)
+    assert co.tobytes() == np.ascontiguousarray(direct.vertices).tobytes()
+    assert np.array_equal(tri, direct.triangles.astype(np.int32))
+    for name in ("err_est", "t_cubic", "edge_axis", "err_true_cubic"):
+        got = attributes.get_attribute(obj.data, name)
+        assert np.array_equal(got, direct.columns[name].astype(got.dtype), equal_nan=True), name
+    assert json.loads(obj.isouq.summary)["vertices"] == len(direct.vertices)
+    assert obj.data["isouq_method"] == "cubic"
+
+
+def test_run_in_process_reports_the_cli_error(module, no_subprocess, empty_scene):
+    s = empty_scene.scene.isouq
+    s.input_path = "field:nope"
+    with pytest.raises(RuntimeError, match="unknown field 'nope'"):
+        bpy.ops.isouq.run_pipeline()
+
+
+def test_live_isovalue_and_method_change_the_mesh(module, no_subprocess, empty_scene):
+    context = empty_scene
+    obj = run_in_process(context, "field:tangle", resolution=32, use_isovalue=True, isovalue=0.0)
+    s = context.scene.isouq
+    me = obj.data
+    before, _ = arrays(obj)
+    s.live = True
+    live.flush(context)
+    s.isovalue = 0.2
+    assert bpy.app.timers.is_registered(live._tick)  # debounced, not meshed in the update
+    assert live.flush(context) is not None
+    after, _ = arrays(obj)
+    assert obj.data == me  # in place: the same mesh data block
+    expected = module.mesh(module.load("field:tangle", resolution=32), isovalue=0.2)
+    assert len(after) == len(expected.vertices) != len(before)
+    assert after.tobytes() == np.ascontiguousarray(expected.vertices).tobytes()
+    s.method = "linear"
+    live.flush(context)
+    linear, _ = arrays(obj)
+    assert obj.isouq.method_shown == "linear" and len(linear) == len(after)
+    assert not np.array_equal(linear, after)
+    # The threshold redoes the views (C1 selection) without re-meshing.
+    obj["isouq_view_selection"] = "THRESHOLD"
+    s.measure = "err_est"
+    s.threshold_value = 0.0
+    live.flush(context)
+    s.threshold_value = float(np.nanmedian(attributes.get_attribute(me, "err_est")))
+    live.flush(context)
+    selected = attributes.get_attribute(me, "isouq_selected")
+    assert selected is not None and 0 < selected.sum() < len(selected)
+    s.live = False
+    s.isovalue = 1.0
+    assert live.flush(context) is None  # off: nothing queued
+
+
+def live_timings(context, path, isovalues, **settings):
+    obj = run_in_process(context, path, use_isovalue=True, isovalue=isovalues[0], **settings)
+    s = context.scene.isouq
+    s.live = True
+    live.flush(context)  # loads the volume once (reported apart)
+    load = dict(live.last_timing)
+    rows = []
+    for k in isovalues[1:] * 3:
+        s.isovalue = k
+        rows.append(dict(live.flush(context)))
+    s.live = False
+    return obj, load, rows
+
+
+@pytest.mark.parametrize("name,grid,isovalues", [
+    ("smoke.vdb", "density", [0.1, 0.12, 0.15, 0.2]),
+    ("fuel_64x64x64_uint8.raw", "", [62.0, 70.0, 80.0, 90.0]),
+    ("brainsmall_128x128x84_uint8.raw", "", [24.0, 28.0, 33.0, 40.0])])
+def test_live_update_times(module, no_subprocess, empty_scene, name, grid, isovalues):
+    path = os.path.join(DATA, name)
+    if not os.path.isfile(path):
+        pytest.skip(f"{path} not found")
+    obj, load, rows = live_timings(empty_scene, path, isovalues, grid=grid)
+    median = {key: float(np.median([r[key] for r in rows])) for key in
+              ("mesh_ms", "blender_ms", "total_ms", "since_change_ms")}
+    report = {"input": name, "first_update_ms": load["total_ms"], "load_ms": load["load_ms"],
+              "vertices": [r["vertices"] for r in rows[:len(isovalues) - 1]], **median}
+    print(json.dumps(report))
+    out = os.environ.get("ISOUQ_LIVE_TIMINGS")
+    if out:
+        with open(out, "a", encoding="utf-8") as f:
+            f.write(json.dumps(report) + "\n")
+    assert all(r["vertices"] > 0 for r in rows)
