@@ -1,9 +1,11 @@
 # Live mode (docs/blender.md "Live mode"): with Scene.isouq.live on, changing the isovalue or
 # the method in the panel re-meshes the live object in process (the isouq module, native.py)
 # and replaces its mesh data in place, like Blender's Volume to Mesh modifier; changing the
-# threshold redoes its views. Changes are debounced (a timer DEBOUNCE s after the last one),
-# and the volume is loaded once per input (isouq.load, keep=non_constant: every isovalue meshes
-# as the full data), so one update is one pass of the mesher plus the copy into Blender.
+# threshold redoes its views. Changes are debounced (a timer DEBOUNCE s after the last one); the
+# mesher runs on a thread (the module releases the GIL) while the UI goes on, and only the copy
+# into Blender runs on the main thread. The volume is loaded once per input (isouq.load,
+# keep=non_constant: every isovalue meshes as the full data), so one update is one pass of the
+# mesher plus the copy into Blender.
 
 import json
 import time
@@ -49,14 +51,85 @@ def schedule(context, remesh=True):
         bpy.app.timers.register(_tick, first_interval=DEBOUNCE)
 
 
+_running = {}   # the mesh being made off the UI thread: thread, obj, settings, result, error
+
+
 def _tick():
-    flush(bpy.context)
-    return None  # one shot
+    """The timer: applies a finished background mesh, starts the next one, or redoes the views;
+    polls every 10 ms while a mesh is being made (the UI keeps running meanwhile)."""
+    context = bpy.context
+    if _running:
+        if _running["thread"].is_alive():
+            return 0.01
+        _apply_running(context)
+    if not _pending["views"]:
+        return None
+    obj = target(context)
+    if obj is None:
+        _pending.update(remesh=False, views=False, since=None)
+        return None
+    if not _pending["remesh"]:
+        flush(context)
+        return None
+    since = _pending["since"]
+    _pending.update(remesh=False, views=False, since=None)
+    _start(context, obj, since)
+    return 0.01
+
+
+def _start(context, obj, since):
+    """Meshes on a thread (the module releases the GIL): Blender data is only touched later,
+    on the main thread, by _apply_running."""
+    import threading
+    module = native.load()
+    if module is None:
+        obj["isouq_live_error"] = f"live mode needs the isouq Python module ({native.error()})"
+        return
+    s = context.scene.isouq
+    request = json.loads(obj[REQUEST_KEY])
+    settings = (s.isovalue if s.use_isovalue else None, s.method)
+    _running.update(obj=obj, since=since, start=time.perf_counter(), result=None, error=None)
+
+    def work():
+        try:
+            _running["result"] = _mesh(module, request, *settings)
+        except Exception as e:  # InputError etc.: shown on the object
+            _running["error"] = str(e)
+
+    _running["thread"] = threading.Thread(target=work, daemon=True)
+    _running["thread"].start()
+
+
+def _mesh(module, request, isovalue, method):
+    start = time.perf_counter()
+    vol = volume(module, request)
+    loaded = time.perf_counter()
+    mesh = module.mesh(vol, isovalue=vol.isovalue if isovalue is None else isovalue, method=method,
+                       summary=False)
+    return mesh, 1e3 * (loaded - start), 1e3 * (time.perf_counter() - loaded)
+
+
+def _apply_running(context):
+    run = dict(_running)
+    _running.clear()
+    obj = run["obj"]
+    try:
+        obj.name  # the object may have been deleted meanwhile
+    except ReferenceError:
+        return
+    if run["error"]:
+        obj["isouq_live_error"] = run["error"]
+        return
+    _apply(context, obj, *run["result"], start=run["start"])
+    last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - run["since"])
 
 
 def flush(context):
-    """Runs what schedule() queued now (the timer calls it; scripts and tests may too).
-    Returns last_timing, or None if nothing was queued."""
+    """Runs what schedule() queued now, on this thread (the timer does it in the background;
+    scripts and tests call this). Returns last_timing, or None if nothing was queued."""
+    if _running:
+        _running["thread"].join()
+        _apply_running(context)
     if not _pending["views"]:
         return None
     remesh = _pending["remesh"]
@@ -96,23 +169,24 @@ def update(context, obj):
         raise RuntimeError(f"live mode needs the isouq Python module ({native.error()})")
     s = context.scene.isouq
     start = time.perf_counter()
-    request = json.loads(obj[REQUEST_KEY])
-    vol = volume(module, request)
-    loaded = time.perf_counter()
-    isovalue = s.isovalue if s.use_isovalue else vol.isovalue
-    mesh = module.mesh(vol, isovalue=isovalue, method=s.method, summary=False)
-    meshed = time.perf_counter()
+    result = _mesh(module, json.loads(obj[REQUEST_KEY]), s.isovalue if s.use_isovalue else None,
+                   s.method)
+    _apply(context, obj, *result, start=start)
+
+
+def _apply(context, obj, mesh, load_ms, mesh_ms, start):
+    """The new mesh into obj.data, its views redone, the depsgraph updated; the timings kept."""
+    applying = time.perf_counter()
     attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh))
     attributes.remember_primary_positions(obj.data)
     obj.isouq.method_shown = mesh.method
     obj.isouq.summary = json.dumps({"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
-                                    "isovalue": float(isovalue), "method": mesh.method, "live": True})
+                                    "isovalue": float(mesh.isovalue), "method": mesh.method, "live": True})
     if len(obj.data.vertices):
         views.reapply(context, obj)
     context.view_layer.update()
     done = time.perf_counter()
-    last_timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded),
-                       blender_ms=1e3 * (done - meshed), total_ms=1e3 * (done - start),
-                       vertices=len(mesh.vertices))
+    last_timing.update(load_ms=load_ms, mesh_ms=mesh_ms, blender_ms=1e3 * (done - applying),
+                       total_ms=1e3 * (done - start), vertices=len(mesh.vertices))
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]
