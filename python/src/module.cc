@@ -22,6 +22,9 @@
 #include <tbb/task_arena.h>
 
 #include <atomic>
+#include <condition_variable>
+#include <map>
+#include <mutex>
 #include <chrono>
 #include <cstdint>
 #include <exception>
@@ -44,24 +47,80 @@ private:
     std::atomic<bool> mCancel{false};
 };
 
-/// Runs @a work on a worker thread (in a TBB arena of @a threads, 0 for all cores) with the
-/// GIL released; every 20 ms the caller takes the GIL back to run Python's signal handlers
-/// (PyErr_CheckSignals: only the main thread has any), and a raised KeyboardInterrupt cancels
-/// the work, which ends within one interrupter check. C++ errors come back as they were thrown.
+/// A long-lived worker thread of one calling thread (thread_local, so calls from several
+/// Python threads still run at once). It keeps TBB's arena between calls: a fresh thread or
+/// arena per call cost more than meshing a 32^3 grid (bench/README.md "Python call overhead").
+class Worker {
+public:
+    Worker() : mThread([this] { loop(); }) {}
+    ~Worker()
+    {
+        {
+            std::lock_guard<std::mutex> lock(mMutex);
+            mStop = true;
+        }
+        mWake.notify_one();
+        mThread.join();
+    }
+    void post(std::function<void()> job)
+    {
+        {
+            std::lock_guard<std::mutex> lock(mMutex);
+            mJob = std::move(job);
+        }
+        mWake.notify_one();
+    }
+    /// The arena of @a threads workers (0: TBB's default), made once.
+    tbb::task_arena& arena(int threads)
+    {
+        auto& a = mArenas[threads];
+        const int concurrency = threads > 0 ? threads : int(tbb::task_arena::automatic);
+        if (!a) a = std::make_unique<tbb::task_arena>(concurrency);
+        return *a;
+    }
+
+private:
+    void loop()
+    {
+        for (;;) {
+            std::function<void()> job;
+            {
+                std::unique_lock<std::mutex> lock(mMutex);
+                mWake.wait(lock, [this] { return mStop || mJob; });
+                if (!mJob) return;
+                job = std::move(mJob);
+                mJob = nullptr;
+            }
+            job();
+        }
+    }
+    std::mutex mMutex;
+    std::condition_variable mWake;
+    std::function<void()> mJob;
+    bool mStop = false;
+    std::map<int, std::unique_ptr<tbb::task_arena>> mArenas; // used on the worker thread only
+    std::thread mThread;
+};
+
+/// Runs @a work on the calling thread's Worker (in a TBB arena of @a threads, 0 for all cores)
+/// with the GIL released; every 20 ms the caller takes the GIL back to run Python's signal
+/// handlers (PyErr_CheckSignals: only the main thread has any), and a raised KeyboardInterrupt
+/// cancels the work, which ends within one interrupter check. C++ errors come back as thrown.
 template <typename Work>
 auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)))
 {
     using Result = decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)));
+    thread_local Worker worker;
+    Worker* mine = &worker; // a thread_local named inside the job would be the worker thread's
     CancelInterrupter interrupter;
-    std::packaged_task<Result()> task([&] {
-        tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
-        return arena.execute([&] { return work(&interrupter); });
+    auto task = std::make_shared<std::packaged_task<Result()>>([&, mine] {
+        return mine->arena(threads).execute([&] { return work(&interrupter); });
     });
-    std::future<Result> done = task.get_future();
+    std::future<Result> done = task->get_future();
     bool interrupted = false;
     {
         py::gil_scoped_release release;
-        std::thread worker(std::move(task));
+        mine->post([task] { (*task)(); });
         while (done.wait_for(std::chrono::milliseconds(20)) != std::future_status::ready) {
             if (interrupted) continue;
             py::gil_scoped_acquire acquire;
@@ -70,7 +129,6 @@ auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb
                 interrupter.cancel();
             }
         }
-        worker.join();
     }
     if (interrupted) {
         try {
