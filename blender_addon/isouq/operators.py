@@ -1,5 +1,6 @@
-# Operators: import (File > Import), the pipeline run (background subprocess + modal timer), the
-# analysis views C1..C7 (views.py) and rendering. Errors go to self.report and return CANCELLED.
+# Operators: import (File > Import), the pipeline run (in process with the isouq Python module,
+# else a background subprocess; a modal timer either way), the analysis views C1..C7 (views.py)
+# and rendering. Errors go to self.report and return CANCELLED.
 
 import json
 import os
@@ -120,8 +121,8 @@ def sequence_folder(context, setting, name):
 
 
 class ISOUQ_OT_run_pipeline(bpy.types.Operator):
-    """Run `isouq mesh` on the VDB file or Volume object in the background and import the result.
-    Esc cancels"""
+    """Run isouq on the VDB file or Volume object in the background (in process when the isouq
+    Python module loads, else `isouq mesh`) and import the result. Esc cancels"""
     bl_idname = "isouq.run_pipeline"
     bl_label = "Run isouq"
     bl_options = {"REGISTER", "UNDO"}
