@@ -29,6 +29,8 @@ def module_dir():
 
 @pytest.fixture(scope="module")
 def isouq():
+    if os.environ.get("ISOUQ_PYTHON_DIR") == "":
+        pytest.skip("this build has no isouq Python module (ctest passes an empty ISOUQ_PYTHON_DIR)")
     folder = module_dir()
     if not (folder / "isouq" / "__init__.py").is_file():
         pytest.skip(f"no isouq Python module in {folder} (build the isouq_python target)")
