@@ -35,8 +35,9 @@ print(f"{above.sum()} of {len(err)} vertices above the 90th percentile, err_est 
 
 # --- 4. Plot: the CDF with its threshold, and the surface seen from +z, above in red.
 fig, (cdf, view) = plt.subplots(1, 2, figsize=(11, 4.8))
-values = np.sort(err[np.isfinite(err)])
+values = np.sort(err[np.isfinite(err) & (err > 0)])  # log axis: the long tail is where it matters
 cdf.plot(values, np.arange(1, len(values) + 1) / len(values), color="black")
+cdf.set_xscale("log")
 cdf.axvline(threshold, color="tab:red", linestyle="--", label=f"90th percentile: {threshold:.3g}")
 cdf.set(xlabel="err_est (world units)", ylabel="fraction of vertices", title="C1: cumulative distribution")
 cdf.legend(loc="lower right")
