@@ -291,6 +291,7 @@ struct Options {
     std::string dataDir = ISOUQ_DATA_DIR;
     Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-unfiltered
     bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
+    std::vector<std::string> loads; // --load FILE,...: time isouq::loadVolume (dense scans)
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -316,6 +317,7 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
         else if (arg == "--data") o.dataDir = next();
         else if (arg == "--reuse") o.reuse = true;
+        else if (arg == "--load") o.loads = splitCommas(next());
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
             if (o.isouqPass == Algo::VolumeToMesh)
@@ -327,7 +329,7 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse]");
+                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse] [--load FILE,...]");
         }
     }
     return o;
@@ -368,6 +370,35 @@ void benchCase(const std::string& caseName, const Options& o)
             caseName.c_str(), activeM, threads <= 0 ? "default " : "", used, tris[0], tris[1],
             1e3 * w[0], 1e3 * w[1], w[0] / w[1], 1e3 * c[0], 1e3 * c[1], c[0] / c[1], 1e-6 * double(tris[0]) / w[0],
             1e-6 * double(tris[1]) / w[1], mem[0], mem[1], mem[0] / mem[1], load.c_str());
+        std::fflush(stdout);
+    }
+}
+
+/// --load: isouq::loadVolume of a dense scan (read, Otsu's default isovalue, dense to sparse)
+/// as `isouq mesh` loads it; wall and CPU medians, the file's bytes per wall second.
+void benchLoad(const std::string& path, const Options& o)
+{
+    std::ifstream file(path, std::ios::binary | std::ios::ate);
+    const double mib = double(file.tellg()) / double(1 << 20);
+    isouq::VolumeRequest request;
+    request.input = path;
+    for (const int threads : o.threads) {
+        const std::string load = loadAverage();
+        const auto control = limitThreads(threads);
+        const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+        isouq::LoadedVolume volume = isouq::loadVolume(request); // warm-up: the file into the page cache
+        std::vector<double> wall, cpu;
+        for (int r = 0; r < o.repeats; ++r) {
+            volume = {};
+            const double w0 = wallSeconds(), c0 = cpuSeconds();
+            volume = isouq::loadVolume(request);
+            wall.push_back(wallSeconds() - w0);
+            cpu.push_back(cpuSeconds() - c0);
+        }
+        const double w = median(wall), c = median(cpu);
+        std::printf("| %s | %.0f | %s%d | %.2f | %zu | %.1f | %.1f | **%.0f** | %s |\n", path.substr(path.rfind('/') + 1).c_str(),
+            mib, threads <= 0 ? "default " : "", used, volume.isovalue, volume.keptBlocks, 1e3 * w, 1e3 * c,
+            mib * 1.048576 / w, load.c_str());
         std::fflush(stdout);
     }
 }
@@ -426,6 +457,14 @@ int main(int argc, char** argv)
             return childMemory(argv[2], algoFromName(argv[3]),
                 std::stoi(argv[4]), argv[5]);
         const Options o = parseOptions(argc, argv);
+        if (!o.loads.empty()) {
+            std::printf("isouq::loadVolume. Load average at start: %s; %d repeats (median).\n\n", loadAverage().c_str(),
+                o.repeats);
+            std::printf("| file | MiB | threads | isovalue | kept blocks | load ms | CPU ms | MB/s | load |\n");
+            std::printf("|---|--:|---|--:|--:|--:|--:|--:|--:|\n");
+            for (const std::string& f : o.loads) benchLoad(f, o);
+            return 0;
+        }
         if (isHiddenPass(o.isouqPass)) {
             std::printf("isouq pass: %s (MC: isouq's linear pass). Load average at start: %s; %d repeats "
                         "(median).\n\n",
