@@ -277,24 +277,30 @@ private:
 
     /// Block row j of the layer: per part, the min/max over the y-dilated rows (in @a lo, @a hi)
     /// then over each block's x-dilated columns; with the own part, the blocks' own min/max/sum.
-    void blockRow(int bk, LayerPart part, int j, std::vector<W>& lo, std::vector<W>& hi)
+    void blockRow(int bk, LayerPart part, int j, std::vector<W>& loColumns, std::vector<W>& hiColumns)
     {
+        // Raw pointers: a store through W = uint8_t may alias a vector's own pointers, which
+        // would keep the loops from being vectorised.
+        W* lo = loColumns.data();
+        W* hi = hiColumns.data();
         const int nx = mDims.x(), ny = mDims.y();
         Summary& out = summary(bk);
         const int y0 = j * kBlock, y1 = std::min(y0 + kBlock, ny);
         for (int p = 0; p < 3; ++p) {
             if (!hasPart(part, p)) continue;
-            std::fill(lo.begin(), lo.end(), S::kHigh), std::fill(hi.begin(), hi.end(), S::kLow);
+            std::fill_n(lo, nx, S::kHigh), std::fill_n(hi, nx, S::kLow);
             for (int y = std::max(y0 - kHalo, 0); y < std::min(y1 + kHalo, ny); ++y) {
                 const W* rowLo = &mColLo[p][std::size_t(y) * nx];
                 const W* rowHi = &mColHi[p][std::size_t(y) * nx];
                 for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], rowLo[x]), hi[x] = std::max(hi[x], rowHi[x]);
             }
+            W* outLo = out.lo[p].data() + std::size_t(j) * mBx;
+            W* outHi = out.hi[p].data() + std::size_t(j) * mBx;
             for (int i = 0; i < mBx; ++i) {
                 W l = S::kHigh, h = S::kLow;
                 for (int x = std::max(i * kBlock - kHalo, 0); x < std::min((i + 1) * kBlock + kHalo, nx); ++x)
                     l = std::min(l, lo[x]), h = std::max(h, hi[x]);
-                out.lo[p][std::size_t(j) * mBx + i] = l, out.hi[p][std::size_t(j) * mBx + i] = h;
+                outLo[i] = l, outHi[i] = h;
             }
         }
         if (part != LayerPart::Own) return;
@@ -302,8 +308,9 @@ private:
         // floating point from the finite min/max and the sums added in (y, x) order.
         if constexpr (!S::kFloat) {
             // Down the block row's 8 rows first (vectorised), then across each block's columns.
-            std::vector<typename S::BlockSum> sums(std::size_t(nx), 0);
-            std::fill(lo.begin(), lo.end(), S::kHigh), std::fill(hi.begin(), hi.end(), S::kLow);
+            std::vector<typename S::BlockSum> sumColumns(std::size_t(nx), 0);
+            typename S::BlockSum* sums = sumColumns.data();
+            std::fill_n(lo, nx, S::kHigh), std::fill_n(hi, nx, S::kLow);
             for (int y = y0; y < y1; ++y) {
                 const std::size_t r = std::size_t(y) * nx;
                 const W *rowLo = &mColLo[0][r], *rowHi = &mColHi[0][r];
