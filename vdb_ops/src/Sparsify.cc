@@ -116,7 +116,8 @@ struct Samples {
     static constexpr bool kFloat = std::is_floating_point_v<W>;
     static constexpr W kHigh = kFloat ? std::numeric_limits<W>::infinity() : std::numeric_limits<W>::max();
     static constexpr W kLow = kFloat ? -std::numeric_limits<W>::infinity() : std::numeric_limits<W>::lowest();
-    using ColumnSum = std::conditional_t<kFloat, double, std::int32_t>; // 8 samples of 16 bits fit
+    // 8 samples: of 8 bits fit 16 bits, of 16 bits 32 bits
+    using ColumnSum = std::conditional_t<kFloat, double, std::conditional_t<sizeof(W) == 1, std::uint16_t, std::int32_t>>;
     using BlockSum = std::conditional_t<kFloat, double, std::int64_t>;
 };
 
@@ -242,8 +243,10 @@ private:
         }
         for (int z = z0; z < z1; ++z) {
             const W* v = slot(z) + offset;
+            const auto in = [z](const std::pair<int, int>& r) { return z >= r.first && z < r.second; };
             for (int p = 0; p < 3; ++p) {
-                if (!hasPart(part, p) || z < range[p].first || z >= range[p].second) continue;
+                if (!hasPart(part, p) || !in(range[p])) continue;
+                if (p == 0 && (in(range[1]) || in(range[2]))) continue; // own = top + bottom + the rest
                 W* lo = &mColLo[p][offset];
                 W* hi = &mColHi[p][offset];
                 for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], v[x]), hi[x] = std::max(hi[x], v[x]);
@@ -262,6 +265,16 @@ private:
                 }
             } else {
                 for (int x = 0; x < nx; ++x) sum[x] += v[x];
+            }
+        }
+        if (own) {
+            W *lo = &mColLo[0][offset], *hi = &mColHi[0][offset];
+            for (int p = 1; p < 3; ++p) {
+                const W *pLo = &mColLo[p][offset], *pHi = &mColHi[p][offset];
+                for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], pLo[x]), hi[x] = std::max(hi[x], pHi[x]);
+                if constexpr (S::kFloat) {
+                    for (int x = 0; x < nx; ++x) check[std::size_t(x)] += check[std::size_t(p) * nx + x];
+                }
             }
         }
         if constexpr (S::kFloat) {
