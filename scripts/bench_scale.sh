@@ -10,21 +10,22 @@
 #
 #   scripts/bench_scale.sh            # about 10-15 minutes on a quiet 2-core machine
 #
-# Environment: BUILD_DIR (default build-bench), SCAN_DIR (default /tmp/isouq-scan),
-# BASE_CLI (optional), REPEATS (default 5).
+# Environment: BUILD_DIR (default build-bench), SCAN_DIR (default /tmp/isouq-scan), SCAN_N
+# (default 1024), BASE_CLI (optional), REPEATS (default 5).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=${BUILD_DIR:-$root/build-bench}
 scanDir=${SCAN_DIR:-/tmp/isouq-scan}
 repeats=${REPEATS:-5}
-scan=$scanDir/sphere_1024x1024x1024_uint8.raw
+n=${SCAN_N:-1024}
+scan=$scanDir/sphere_${n}x${n}x${n}_uint8.raw
 cli=$build/houdini_style_nodes/isouq
 bench=$build/bench/isouq_bench
 
 cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DISOUQ_BUILD_BENCH=ON >/dev/null
 cmake --build "$build" -j2 --target isouq_bench isouq >/dev/null
 mkdir -p "$scanDir"
-[ -f "$scan" ] || /usr/bin/python3 "$root/scripts/make_raw_sphere.py" "$scan" 1024
+[ -f "$scan" ] || /usr/bin/python3 "$root/scripts/make_raw_sphere.py" "$scan" "$n"
 cat "$scan" >/dev/null # into the page cache
 
 load() { echo; echo "uptime: $(uptime)"; echo; }
