@@ -27,6 +27,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -291,6 +292,8 @@ struct Options {
     std::string dataDir = ISOUQ_DATA_DIR;
     Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-unfiltered
     bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
+    std::vector<std::string> loads; // --load FILE,...: time isouq::loadVolume (dense scans)
+    bool stages = false;            // --stages: per-stage thread scaling of the mesher
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -316,6 +319,8 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--memory-runs") o.memoryRuns = std::stoi(next());
         else if (arg == "--data") o.dataDir = next();
         else if (arg == "--reuse") o.reuse = true;
+        else if (arg == "--load") o.loads = splitCommas(next());
+        else if (arg == "--stages") o.stages = true;
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
             if (o.isouqPass == Algo::VolumeToMesh)
@@ -327,7 +332,7 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse]");
+                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse] [--load FILE,...] [--stages]");
         }
     }
     return o;
@@ -370,6 +375,81 @@ void benchCase(const std::string& caseName, const Options& o)
             1e-6 * double(tris[1]) / w[1], mem[0], mem[1], mem[0] / mem[1], load.c_str());
         std::fflush(stdout);
     }
+}
+
+/// --load: isouq::loadVolume of a dense scan (read, Otsu's default isovalue, dense to sparse)
+/// as `isouq mesh` loads it; wall and CPU medians, the file's bytes per wall second.
+void benchLoad(const std::string& path, const Options& o)
+{
+    std::ifstream file(path, std::ios::binary | std::ios::ate);
+    const double mib = double(file.tellg()) / double(1 << 20);
+    isouq::VolumeRequest request;
+    request.input = path;
+    for (const int threads : o.threads) {
+        const std::string load = loadAverage();
+        const auto control = limitThreads(threads);
+        const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+        isouq::LoadedVolume volume = isouq::loadVolume(request); // warm-up: the file into the page cache
+        std::vector<double> wall, cpu;
+        for (int r = 0; r < o.repeats; ++r) {
+            volume = {};
+            const double w0 = wallSeconds(), c0 = cpuSeconds();
+            volume = isouq::loadVolume(request);
+            wall.push_back(wallSeconds() - w0);
+            cpu.push_back(cpuSeconds() - c0);
+        }
+        const double w = median(wall), c = median(cpu);
+        std::printf("| %s | %.0f | %s%d | %.2f | %zu | %.1f | %.1f | **%.0f** | %s |\n", path.substr(path.rfind('/') + 1).c_str(),
+            mib, threads <= 0 ? "default " : "", used, volume.isovalue, volume.keptBlocks, 1e3 * w, 1e3 * c,
+            mib * 1.048576 / w, load.c_str());
+        std::fflush(stdout);
+    }
+}
+
+/// --stages: the mesher's stages (IsosurfaceMesher::stageTimes) with one thread and with all,
+/// interleaved call by call, fresh mesher and mesh each call (as extractIsosurface); per stage
+/// the median wall times, the speedup S and the serial fraction Amdahl's law gives on P threads,
+/// f = (P / S - 1) / (P - 1).
+void benchStages(const std::string& caseName, const Options& o)
+{
+    const openvdb::FloatGrid::Ptr grid = makeGrid(caseName, o.dataDir);
+    isouq::MeshSettings settings;
+    settings.isovalue = isovalueOf(caseName, *grid);
+    settings.uncertainty = o.isouqPass != Algo::Isouq;
+    settings.highOrder = o.isouqPass == Algo::IsouqFull;
+    const std::string load = loadAverage();
+    const int all = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+    using Stages = isouq::IsosurfaceMesher::StageTimes;
+    constexpr int kStages = 7;
+    auto values = [](const Stages& t, double total) {
+        return std::array<double, kStages>{t.blocks, t.sides, t.count, t.offsets, t.allocate, t.fill, total};
+    };
+    std::vector<std::array<double, kStages>> runs[2];
+    for (int r = -1; r < o.repeats; ++r)
+        for (int t = 0; t < 2; ++t) {
+            const auto control = limitThreads(t == 0 ? 1 : all);
+            isouq::IsosurfaceMesher mesher(settings);
+            isouq::Mesh mesh;
+            const double w0 = wallSeconds();
+            mesher(*grid, mesh);
+            const double total = 1e3 * (wallSeconds() - w0);
+            if (r >= 0) runs[t].push_back(values(mesher.stageTimes(), total)); // r = -1: warm-up
+        }
+    const char* names[kStages] = {"block set", "sides", "count", "prefix sums (serial)", "allocate output", "fill",
+        "**whole call**"};
+    for (int k = 0; k < kStages; ++k) {
+        double m[2];
+        for (int t = 0; t < 2; ++t) {
+            std::vector<double> v;
+            for (const auto& run : runs[t]) v.push_back(run[std::size_t(k)]);
+            m[t] = median(v);
+        }
+        const double speedup = m[1] > 0 ? m[0] / m[1] : 0.0;
+        const double serial = all > 1 && speedup > 0 ? std::clamp((all / speedup - 1.0) / (all - 1), 0.0, 1.0) : 1.0;
+        std::printf("| %s | %s | %s | %.2f | %.2f | %.2f | %.2f | %s |\n", caseName.c_str(), algoName(o.isouqPass), names[k],
+            m[0], m[1], speedup, serial, load.c_str());
+    }
+    std::fflush(stdout);
 }
 
 bool isHiddenPass(Algo a) { return a == Algo::IsouqHidden || a == Algo::IsouqHiddenUnfiltered; }
@@ -426,6 +506,23 @@ int main(int argc, char** argv)
             return childMemory(argv[2], algoFromName(argv[3]),
                 std::stoi(argv[4]), argv[5]);
         const Options o = parseOptions(argc, argv);
+        if (!o.loads.empty()) {
+            std::printf("isouq::loadVolume. Load average at start: %s; %d repeats (median).\n\n", loadAverage().c_str(),
+                o.repeats);
+            std::printf("| file | MiB | threads | isovalue | kept blocks | load ms | CPU ms | MB/s | load |\n");
+            std::printf("|---|--:|---|--:|--:|--:|--:|--:|--:|\n");
+            for (const std::string& f : o.loads) benchLoad(f, o);
+            return 0;
+        }
+        if (o.stages) {
+            std::printf("Mesher stages, 1 thread against %d, interleaved. Load average at start: %s; %d repeats "
+                        "(median).\n\n", int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)),
+                loadAverage().c_str(), o.repeats);
+            std::printf("| case | pass | stage | 1 thread ms | all threads ms | speedup | serial fraction | load |\n");
+            std::printf("|---|---|---|--:|--:|--:|--:|--:|\n");
+            for (const std::string& c : o.cases) benchStages(c, o);
+            return 0;
+        }
         if (isHiddenPass(o.isouqPass)) {
             std::printf("isouq pass: %s (MC: isouq's linear pass). Load average at start: %s; %d repeats "
                         "(median).\n\n",

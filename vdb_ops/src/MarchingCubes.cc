@@ -27,6 +27,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -41,6 +42,7 @@ using openvdb::Coord;
 using openvdb::CoordBBox;
 
 constexpr int kWords = 3 * 512 / 64; // one bit per (voxel, axis) owned by a block
+constexpr openvdb::Index64 kSerialLeaves = 32; // fewer leaves: one thread (bench/README.md)
 
 /// Which edges of a block carry a vertex: bit 3 * voxelOffset + axis. Kept from the count pass
 /// to the fill pass for non-empty blocks only (most blocks of a narrow band are empty).
@@ -199,6 +201,21 @@ void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupt
     if (stop) throw InterruptedError();
 }
 
+/// Stage wall times of IsosurfaceMesher::StageTimes: lap(t) sets t to the time since the last lap.
+class StageClock {
+public:
+    explicit StageClock(IsosurfaceMesher::StageTimes& times) { times = {}; }
+    void lap(double& ms)
+    {
+        const auto now = std::chrono::steady_clock::now();
+        ms = std::chrono::duration<double, std::milli>(now - mLast).count();
+        mLast = now;
+    }
+
+private:
+    std::chrono::steady_clock::time_point mLast = std::chrono::steady_clock::now();
+};
+
 /// Bytes this process can still allocate: the kernel's MemAvailable, and under an address-space
 /// limit (ulimit -v) what is left of it; 0 if unknown.
 inline std::uint64_t availableMemory()
@@ -232,6 +249,8 @@ inline void checkMeshFits(std::uint64_t vertices, std::uint64_t triangles, const
     std::uint64_t perVertex = 12 + (provenance ? 17 : 0);
     if (settings.uncertainty) perVertex += 8 + (settings.highOrder ? 45 : 0);
     const std::uint64_t bytes = vertices * perVertex + triangles * 12;
+    // Small meshes skip reading /proc/meminfo, a cost comparable to meshing a 32^3 grid.
+    if (bytes < (std::uint64_t(16) << 20)) return;
     const std::uint64_t available = availableMemory();
     if (available == 0 || bytes <= available) return;
     const auto gib = [](std::uint64_t b) {
@@ -290,8 +309,13 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
         ~EndGuard() { if (i) i->end(); }
     } endGuard{interrupter};
 
+    // Small grids run serially: waking the worker threads for each pass costs more than a few
+    // hundred blocks take (issue 12, "Small-grid latency").
+    const bool threaded = settings.threaded && grid.tree().leafCount() >= kSerialLeaves;
+    StageClock clock(mStageTimes);
     BlockSet blocks;
-    buildBlockSet(grid.tree(), blocks, settings.threaded);
+    buildBlockSet(grid.tree(), blocks, threaded);
+    clock.lap(mStageTimes.blocks);
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
     // Classifying cells reads one voxel beyond the block; high-order stencils three (SPEC §2).
@@ -305,15 +329,16 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     // Which side of the isovalue each block lies on, so blocks far from the surface cost little.
     std::vector<std::uint8_t>& sides = buffers.sides;
     sides.assign(blockCount, 0);
-    forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
+    forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
     });
+    clock.lap(mStageTimes.sides);
 
     // Count pass: per block its counts; the edge masks of non-empty blocks go to per-thread lists.
     std::vector<BlockCounts>& counts = buffers.counts;
     counts.assign(blockCount, BlockCounts{});
     tbb::enumerable_thread_specific<std::vector<std::pair<std::int32_t, EdgeMask>>> found;
-    forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
+    forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
         if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
         if (!s.gatherAndClassify(blocks.origins[b], isovalue, cellBox)) return;
@@ -321,6 +346,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
         countBlock(s, mask, counts[b]);
         if (!counts[b].empty()) found.local().emplace_back(std::int32_t(b), mask);
     });
+    clock.lap(mStageTimes.count);
 
     // Serial prefix sums: each block's place in the output, independent of the thread count.
     std::vector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
@@ -335,25 +361,31 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
         triangleOffsets[b + 1] = triangleOffsets[b] + counts[b].triangles;
         if (!counts[b].empty()) masks.slot[b] = nonEmpty++;
     }
-    masks.masks.resize(std::size_t(nonEmpty));
-    for (auto& list : found) {
-        for (const auto& [block, mask] : list) masks.masks[std::size_t(masks.slot[std::size_t(block)])] = mask;
-        list = {};
-    }
+    resizeForFill(masks.masks, std::size_t(nonEmpty), threaded);
+    auto moveMasks = [&](auto& lists) {
+        for (auto& list : lists) {
+            for (const auto& [block, mask] : list) masks.masks[std::size_t(masks.slot[std::size_t(block)])] = mask;
+            list = {};
+        }
+    };
+    if (threaded) tbb::parallel_for(found.range(1), moveMasks);
+    else moveMasks(found);
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
     checkMeshFits(vertexOffsets[blockCount], triangleOffsets[blockCount], settings, provenance);
+    clock.lap(mStageTimes.offsets);
 
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();
-    mesh.positions.resize(vertexOffsets[blockCount]);
-    mesh.triangles.resize(triangleOffsets[blockCount]);
-    const VertexColumns columns = VertexColumns::allocate(mesh, provenance, settings);
+    resizeForFill(mesh.positions, vertexOffsets[blockCount], threaded);
+    resizeForFill(mesh.triangles, triangleOffsets[blockCount], threaded);
+    const VertexColumns columns = VertexColumns::allocate(mesh, provenance, settings, threaded);
+    clock.lap(mStageTimes.allocate);
     const VertexContext context{isovalue, toWorld, grid.transform().voxelSize(), bounds,
         settings.stencil, settings.method, settings.uncertainty};
 
     // Fill pass.
-    forEachBlock(blockCount, settings.threaded, interrupter, done, work, [&](std::size_t b) {
+    forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         if (counts[b].empty()) return;
         const Coord& origin = blocks.origins[b];
         BlockScratch<TreeT>& s = stencilScratch.local();
@@ -367,6 +399,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
                     neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
         fillTriangles(s, neighbours, masks, vertexOffsets, flip, mesh.triangles.data() + triangleOffsets[b]);
     });
+    clock.lap(mStageTimes.fill);
 }
 
 template void IsosurfaceMesher::operator()<openvdb::FloatGrid>(

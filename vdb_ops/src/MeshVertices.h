@@ -10,10 +10,15 @@
 
 #include <openvdb/math/Transform.h>
 
+#include <tbb/parallel_for.h>
+
+#include <sys/mman.h>
+
 #include <algorithm>
 #include <cmath>
 #include <array>
 #include <optional>
+#include <vector>
 
 namespace isouq::mc_internal {
 
@@ -45,6 +50,31 @@ private:
     openvdb::Mat4d mMatrix;
 };
 
+/// Gives @a v n elements to be overwritten (their values unspecified). New storage has its pages
+/// faulted in by every thread first (Linux's MADV_POPULATE_WRITE, which writes nothing): a fresh
+/// page costs microseconds here (DESIGN.md "Memory and allocation"), and the first touch of a
+/// large output by resize()'s serial zero fill was the mesher's largest serial stage
+/// (bench/README.md "Thread scaling").
+template <typename T>
+void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
+{
+    constexpr std::size_t kPage = 4096, kChunk = std::size_t(1) << 21;
+    if (!threaded || n <= v.capacity() || n * sizeof(T) < 4 * kChunk) return v.resize(n);
+    std::vector<T> fresh;
+    fresh.reserve(n);
+    const auto lo = (reinterpret_cast<std::uintptr_t>(fresh.data()) + kPage - 1) & ~(kPage - 1);
+    const auto hi = reinterpret_cast<std::uintptr_t>(fresh.data() + n) & ~(kPage - 1);
+    tbb::parallel_for(std::size_t(0), (hi - lo + kChunk - 1) / kChunk, [&](std::size_t c) {
+        const std::uintptr_t at = lo + c * kChunk;
+#ifdef MADV_POPULATE_WRITE
+        ::madvise(reinterpret_cast<void*>(at), std::min<std::uintptr_t>(kChunk, hi - at), MADV_POPULATE_WRITE);
+#endif
+        (void)at; // without it, resize() below faults the pages as before
+    });
+    fresh.resize(n);
+    v.swap(fresh);
+}
+
 /// Output columns the fill pass writes into (null when not requested).
 struct VertexColumns {
     openvdb::Vec3s* positions = nullptr;
@@ -61,38 +91,37 @@ struct VertexColumns {
     /// Sizes the mesh's columns (positions already sized), drops the columns this pass does not
     /// write (a reused mesh's leftovers), and points at them. The pointers are to the columns'
     /// storage, which moving a column (the table growing or shrinking) does not move.
-    static VertexColumns allocate(Mesh& mesh, bool provenance, const MeshSettings& settings)
+    static VertexColumns allocate(Mesh& mesh, bool provenance, const MeshSettings& settings, bool threaded)
     {
         std::vector<std::string> names;
         VertexColumns c;
-        declare(mesh, provenance, settings, names, c);
+        declare(mesh, provenance, settings, threaded, names, c);
         mesh.vertexAttributes.retainOnly(names);
         mesh.faceAttributes.clear();
         return c;
     }
 
 private:
-    static void declare(Mesh& mesh, bool provenance, const MeshSettings& settings,
+    static void declare(Mesh& mesh, bool provenance, const MeshSettings& settings, bool threaded,
         std::vector<std::string>& names, VertexColumns& c)
     {
         names.clear();
         c.positions = mesh.positions.data();
         const std::size_t n = mesh.positions.size();
         AttributeTable& a = mesh.vertexAttributes;
-        auto addFloat = [&](std::string_view name) {
+        auto add = [&](auto zero, std::string_view name) {
             names.emplace_back(name);
-            return a.add<float>(name, n).data();
+            auto& column = a.add<decltype(zero)>(name, 0); // keeps a reused column's storage
+            resizeForFill(column, n, threaded);
+            return column.data();
         };
-        auto addInt = [&](std::string_view name) {
-            names.emplace_back(name);
-            return a.add<std::int32_t>(name, n).data();
-        };
+        auto addFloat = [&](std::string_view name) { return add(0.0f, name); };
+        auto addInt = [&](std::string_view name) { return add(std::int32_t(0), name); };
         if (provenance) {
             c.edgeI = addInt(col::kEdgeI);
             c.edgeJ = addInt(col::kEdgeJ);
             c.edgeK = addInt(col::kEdgeK);
-            names.emplace_back(col::kEdgeAxis);
-            c.edgeAxis = a.add<std::uint8_t>(col::kEdgeAxis, n).data();
+            c.edgeAxis = add(std::uint8_t(0), col::kEdgeAxis);
             c.tLinear = addFloat(col::kTLinear);
         }
         if (!settings.uncertainty) return;
@@ -102,8 +131,7 @@ private:
         c.tCubic = addFloat(col::kTCubic);
         c.tWeno = addFloat(col::kTWeno);
         if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat(col::kTWenoPaper);
-        names.emplace_back(col::kOrder);
-        c.order = a.add<std::uint8_t>(col::kOrder, n).data();
+        c.order = add(std::uint8_t(0), col::kOrder);
         c.errBest = addFloat(col::kErrBest);
         c.errBestSurface = addFloat(col::kErrBestSurface);
         c.errEstCubic = addFloat(col::kErrEstCubic);

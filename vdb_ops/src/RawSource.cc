@@ -1,24 +1,25 @@
 // isouq: raw scans, `name_XxYxZ_dtype.raw` (SPEC §8; docs/inputs.md).
 #include "SourcesInternal.h"
 
-#include <algorithm>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <regex>
-#include <vector>
 
 namespace isouq {
 namespace sources_internal {
 
 namespace fs = std::filesystem;
 
-enum class RawType { Uint8, Uint16, Int16, Float32, Float64 };
+namespace {
 
-struct RawTypeInfo { const char* name; RawType type; std::size_t bytes; };
-constexpr RawTypeInfo kRawTypes[] = {{"uint8", RawType::Uint8, 1}, {"uint16", RawType::Uint16, 2},
-    {"int16", RawType::Int16, 2}, {"float32", RawType::Float32, 4}, {"float64", RawType::Float64, 8}};
+struct RawTypeInfo { const char* name; SampleType type; };
+constexpr RawTypeInfo kRawTypes[] = {{"uint8", SampleType::UInt8}, {"uint16", SampleType::UInt16},
+    {"int16", SampleType::Int16}, {"float32", SampleType::Float32}, {"float64", SampleType::Float64}};
 
 const RawTypeInfo& rawType(const std::string& name)
 {
@@ -28,58 +29,31 @@ const RawTypeInfo& rawType(const std::string& name)
     throw InputError("unknown raw dtype '" + name + "' (use uint8, uint16, int16, float32 or float64)");
 }
 
-template <typename T>
-T readLittleEndian(const char* bytes)
+} // namespace
+
+RawSlabReader::RawSlabReader(const std::string& path, const Coord& dims, SampleType type)
+    : mPath(path), mDims(dims), mType(type), mFd(::open(path.c_str(), O_RDONLY | O_CLOEXEC))
 {
-    T value;
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
-    char swapped[sizeof(T)];
-    std::reverse_copy(bytes, bytes + sizeof(T), swapped);
-    std::memcpy(&value, swapped, sizeof(T));
-#else
-    std::memcpy(&value, bytes, sizeof(T));
-#endif
-    return value;
+    if (mFd < 0) throw InputError("cannot open '" + path + "': " + std::strerror(errno));
 }
 
-/// A headerless little-endian scan, x fastest (index x + X*(y + Y*z)).
-class RawSlices : public SliceSource {
-public:
-    RawSlices(const std::string& path, Coord dimsIn, const RawTypeInfo& type)
-        : mPath(path), mType(type), mFile(path, std::ios::binary)
-    {
-        dims = dimsIn;
-        if (!mFile) throw InputError("cannot open '" + path + "'");
-    }
+RawSlabReader::~RawSlabReader() { ::close(mFd); }
 
-    void read(int z0, int count, float* out) override
-    {
-        const std::size_t n = std::size_t(dims.x()) * dims.y() * count;
-        mBytes.resize(n * mType.bytes);
-        mFile.seekg(std::streamoff(std::size_t(z0) * dims.x() * dims.y() * mType.bytes));
-        if (!mFile.read(mBytes.data(), std::streamsize(mBytes.size()))) {
+void RawSlabReader::readSlices(int z0, int z1, char* out) const
+{
+    const std::size_t slice = std::size_t(mDims.x()) * mDims.y() * sampleBytes(mType);
+    std::size_t left = slice * std::size_t(z1 - z0);
+    off_t at = off_t(slice * std::size_t(z0));
+    while (left > 0) {
+        const ssize_t got = ::pread(mFd, out, left, at);
+        if (got < 0 && errno == EINTR) continue;
+        if (got <= 0) {
             throw InputError("cannot read '" + mPath + "' (slices " + std::to_string(z0) + ".."
-                + std::to_string(z0 + count - 1) + "): file changed or unreadable");
+                + std::to_string(z1 - 1) + "): file changed or unreadable");
         }
-        const char* b = mBytes.data();
-        for (std::size_t i = 0; i < n; ++i, b += mType.bytes) {
-            switch (mType.type) {
-            case RawType::Uint8: out[i] = float(std::uint8_t(*b)); break;
-            case RawType::Uint16: out[i] = float(readLittleEndian<std::uint16_t>(b)); break;
-            case RawType::Int16: out[i] = float(readLittleEndian<std::int16_t>(b)); break;
-            case RawType::Float32: out[i] = readLittleEndian<float>(b); break;
-            case RawType::Float64: out[i] = float(readLittleEndian<double>(b)); break;
-            }
-        }
+        out += got, at += got, left -= std::size_t(got);
     }
-
-private:
-    std::string mPath;
-    RawTypeInfo mType;
-    std::ifstream mFile;
-    std::vector<char> mBytes;
-};
-
+}
 
 LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
@@ -111,7 +85,7 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
         + std::to_string(d[2]) + " " + type.name;
     std::uint64_t voxels = 0, bytes = 0;
     if (__builtin_mul_overflow(d[0], d[1], &voxels) || __builtin_mul_overflow(voxels, d[2], &voxels)
-        || __builtin_mul_overflow(voxels, std::uint64_t(type.bytes), &bytes)) {
+        || __builtin_mul_overflow(voxels, std::uint64_t(sampleBytes(type.type)), &bytes)) {
         throw InputError("'" + file + "': " + shape + " needs more than 2^64 bytes (X*Y*Z overflows)");
     }
     if (bytes != size) {
@@ -133,14 +107,22 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
         }
     }
 
-    RawSlices source(path, Coord(int(d[0]), int(d[1]), int(d[2])), type);
+    const RawSlabReader reader(path, Coord(int(d[0]), int(d[1]), int(d[2])), type.type);
+    const int nz = int(d[2]);
     std::string isovalueSource = "given";
     float isovalue = request.isovalue.value_or(0.0f);
     if (!request.isovalue) {
-        isovalue = float(otsuOfSource(source));
+        RawStats stats = rawStats(reader, 0, nz);
+        if (type.type == SampleType::Float32 || type.type == SampleType::Float64) {
+            const Range range = stats.range;
+            stats.counts = rawStats(reader, 0, nz, &range).counts;
+        }
+        isovalue = float(otsuOfRawStats(stats, type.type));
         isovalueSource = "Otsu (starting value)";
     }
-    LoadedVolume volume = buildDense(source, request, isovalue, interrupter);
+    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
+    LoadedVolume volume = denseVolume(
+        sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
     volume.isovalueSource = isovalueSource;
     volume.grid->setName(named ? m[1].str() : fs::path(path).stem().string());
     auto transform = openvdb::math::Transform::createLinearTransform(1.0);

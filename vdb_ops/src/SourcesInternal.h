@@ -8,11 +8,13 @@
 
 #include <openvdb/openvdb.h>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <limits>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace isouq::sources_internal {
 
@@ -38,6 +40,17 @@ std::uint64_t fileSize(const std::string& path);
 /// Case-insensitive suffix test (".vdb", ".RAW").
 bool endsWith(const std::string& s, const std::string& suffix);
 
+/// Finite values seen: [min, max] (empty while min > max).
+struct Range {
+    double min = std::numeric_limits<double>::infinity();
+    double max = -std::numeric_limits<double>::infinity();
+    void add(double v) { min = std::min(min, v); max = std::max(max, v); }
+    void add(const Range& r) { min = std::min(min, r.min); max = std::max(max, r.max); }
+};
+
+/// Bin of @a v in Otsu's 256-bin histogram over [lo, hi].
+int histogramBin(double v, double lo, double hi);
+
 /// Otsu's threshold of a dense source (two streaming passes: range, then histogram).
 double otsuOfSource(SliceSource& source);
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).
@@ -49,6 +62,17 @@ double otsuOfGrid(const openvdb::FloatGrid& grid);
 LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
     openvdb::util::NullInterrupter* interrupter);
 
+/// A dense volume made sparse (docs/inputs.md "Sparse conversion"): kept blocks are active
+/// leaves, the others inactive tiles; @a range spans the finite values of the blocks' own voxels.
+struct SparseResult {
+    openvdb::FloatTree::Ptr tree;
+    Range range;
+    std::size_t blocks = 0, kept = 0;
+};
+
+/// buildDense's checks and grid for a SparseResult of a whole @a dims volume.
+LoadedVolume denseVolume(SparseResult&& sparse, const Coord& dims, float isovalue);
+
 /// Sample types of the scan formats, decoded to float by decodeSamples (ScanSource.cc).
 enum class SampleType { UInt8, Int8, UInt16, Int16, UInt32, Int32, UInt64, Int64, Float32, Float64 };
 std::size_t sampleBytes(SampleType type);
@@ -58,6 +82,51 @@ const char* toString(SampleType type); ///< "uint8", "int16", "float32", ...
 /// (@a bigEndian), in double, then rounded to float (NIfTI scl_slope/scl_inter, DICOM rescale).
 void decodeSamples(const char* bytes, std::size_t n, SampleType type, bool bigEndian, double slope,
     double inter, float* out);
+
+/// A headerless raw scan (x fastest, little-endian samples) read by z-slabs with positioned
+/// reads (pread): no shared file position, so any thread, or any MPI rank, reads any slabs at
+/// any time (RawSource.cc). Types: UInt8, UInt16, Int16, Float32, Float64.
+class RawSlabReader {
+public:
+    /// @throw InputError if the file cannot be opened.
+    RawSlabReader(const std::string& path, const Coord& dims, SampleType type);
+    ~RawSlabReader();
+    RawSlabReader(const RawSlabReader&) = delete;
+    RawSlabReader& operator=(const RawSlabReader&) = delete;
+
+    const Coord& dims() const { return mDims; }
+    SampleType type() const { return mType; }
+    /// Reads the slices [z0, z1) as stored, (z1 - z0) X Y samples, into @a out.
+    /// @throw InputError on a short read (the file changed) or a read error.
+    void readSlices(int z0, int z1, char* out) const;
+
+private:
+    std::string mPath;
+    Coord mDims;
+    SampleType mType;
+    int mFd = -1;
+};
+
+/// What Otsu's threshold needs from the slices [z0, z1) of a raw scan; parts of a volume add up
+/// (add()), so MPI ranks can reduce theirs. 8- and 16-bit samples: one pass counting each value
+/// (counts[v - lowest value of the type]) gives the range and the histogram. Floating point: a
+/// first call (no @a histogramRange) gives the finite range, a second one the 256-bin histogram
+/// over the whole volume's range.
+struct RawStats {
+    Range range;
+    std::vector<std::uint64_t> counts;
+    void add(const RawStats& other);
+};
+RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange = nullptr);
+/// Otsu's threshold from a whole volume's RawStats (with counts), as otsuOfSource.
+/// @throw InputError for constant data.
+double otsuOfRawStats(const RawStats& stats, SampleType type);
+
+/// Sparsifies the block layers [layer0, layer1) of a raw scan (slices 8 layer0 to 8 layer1,
+/// with kHalo slices read on either side) at @a isovalue, as buildDense does a SliceSource,
+/// in parallel over runs of layers; each run streams its slices through a window of 14.
+SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, KeepBlocks rule, double isovalue,
+    openvdb::util::NullInterrupter* interrupter);
 
 /// The largest dimension a dense source may have (OpenVDB's 32-bit index space, less a leaf).
 constexpr std::uint64_t kMaxDim = std::numeric_limits<std::int32_t>::max() - kBlock;

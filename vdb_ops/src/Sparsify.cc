@@ -6,13 +6,19 @@
 #include "isouq/Progress.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <sstream>
+#include <type_traits>
 #include <vector>
 
 namespace isouq {
@@ -29,12 +35,6 @@ std::string fmt(double v)
 }
 
 // ---- Otsu (SPEC §8 default for scans and fog volumes) -------------------------------------
-
-struct Range {
-    double min = std::numeric_limits<double>::infinity();
-    double max = -std::numeric_limits<double>::infinity();
-    void add(double v) { min = std::min(min, v); max = std::max(max, v); }
-};
 
 int histogramBin(double v, double lo, double hi)
 {
@@ -93,12 +93,6 @@ double otsuOfGrid(const openvdb::FloatGrid& grid)
 
 // ---- Dense -> sparse (docs/inputs.md "Sparse conversion") ---------------------------------
 
-struct SparseResult {
-    FloatTree::Ptr tree;
-    Range range; // finite values
-    std::size_t blocks = 0, kept = 0;
-};
-
 /// Whether a block whose dilation by kHalo spans [lo, hi] becomes a leaf.
 bool keepBlock(KeepBlocks rule, double lo, double hi, double k)
 {
@@ -116,145 +110,371 @@ bool keepBlock(KeepBlocks rule, double lo, double hi, double k)
     return true;
 }
 
+/// Samples as the sparsifier holds them: integers as stored (exact sums, no finite checks),
+/// floating point as float (a float64 scan is rounded on reading, as the float path always did).
+template <typename W>
+struct Samples {
+    static constexpr bool kFloat = std::is_floating_point_v<W>;
+    static constexpr W kHigh = kFloat ? std::numeric_limits<W>::infinity() : std::numeric_limits<W>::max();
+    static constexpr W kLow = kFloat ? -std::numeric_limits<W>::infinity() : std::numeric_limits<W>::lowest();
+    // 8 samples: of 8 bits fit 16 bits, of 16 bits 32 bits
+    using ColumnSum = std::conditional_t<kFloat, double, std::conditional_t<sizeof(W) == 1, std::uint16_t, std::int32_t>>;
+    using BlockSum = std::conditional_t<kFloat, double, std::int64_t>;
+};
+
+/// Which slices of a layer are read and summarised: all of them (the layer's own blocks), or
+/// only the kHalo at its top or bottom (the halo of the layer above or below).
+enum class LayerPart { Own, Top, Bottom };
+
+/// Makes the blocks of 8-slice layers in z order. A layer's slices are summarised once, row by
+/// row, when read (columns()): per block column and row y, the min/max over the x-dilated columns
+/// of the layer's own slices, of its top kHalo slices and of its bottom kHalo slices (non-finite
+/// forces a keep), and per block the min/max/sum of its own finite values. The layer is made
+/// (layer()) once the layer above is summarised: the min/max over its dilated box is the min/max
+/// of its own part, the top of the layer below and the bottom of the layer above, over the
+/// y-dilated rows. Two layers of slices are held (a ring of 16 slices; layer bk in half bk % 2).
+template <typename W>
+class LayerSparsifier {
+public:
+    using S = Samples<W>;
+
+    LayerSparsifier(const Coord& dims, KeepBlocks rule, double k)
+        : mDims(dims), mSlice(std::size_t(dims.x()) * dims.y()), mRule(rule), mK(k),
+          mBx((dims.x() + kBlock - 1) / kBlock), mBy((dims.y() + kBlock - 1) / kBlock),
+          mLayers((dims.z() + kBlock - 1) / kBlock), mRing(mSlice * 2 * kBlock),
+          mOwnLo(S::kFloat ? mSlice : 0), mOwnHi(mOwnLo.size()), mOwnSum(mSlice),
+          mLeaves(std::size_t(mBx) * mBy), mTiles(mLeaves.size())
+    {
+        for (int p = 0; p < 3; ++p) mColLo[p].resize(mSlice), mColHi[p].resize(mSlice);
+        for (Summary& summary : mSummaries) summary.resize(mLeaves.size());
+    }
+
+    int blocksPerLayer() const { return mBx * mBy; }
+    int layers() const { return mLayers; }
+    /// The slices of @a part of layer @a bk: [first, last).
+    std::pair<int, int> slices(int bk, LayerPart part) const
+    {
+        const int z0 = bk * kBlock, z1 = std::min(z0 + kBlock, mDims.z());
+        if (part == LayerPart::Top) return {std::max(z1 - kHalo, z0), z1};
+        if (part == LayerPart::Bottom) return {z0, std::min(z0 + kHalo, z1)};
+        return {z0, z1};
+    }
+    /// Where slice @a z of the ring goes; the slices of a layer are contiguous.
+    W* slot(int z) { return mRing.data() + std::size_t(z % (2 * kBlock)) * mSlice; }
+
+    /// Summarises @a part of layer @a bk, whose slices are in the ring (rows in parallel when
+    /// @a threaded).
+    void columns(int bk, LayerPart part, bool threaded)
+    {
+        forRange(mDims.y(), threaded, [&](int y0, int y1) {
+            std::vector<float> check(S::kFloat ? 3 * std::size_t(mDims.x()) : 0);
+            for (int y = y0; y < y1; ++y) row(bk, part, y, check);
+        });
+        forRange(mBy, threaded, [&](int j0, int j1) {
+            std::vector<W> lo(std::size_t(mDims.x())), hi(lo.size());
+            for (int j = j0; j < j1; ++j) blockRow(bk, part, j, lo, hi);
+        });
+    }
+
+    /// Makes layer @a bk's leaves and tiles (blocks in parallel when @a threaded), adds its own
+    /// finite values to @a range, then hands the blocks to @a insert(leaves, tiles). Needs the
+    /// Own summary of bk, the Top of bk - 1 and the Bottom of bk + 1 (where they exist), and
+    /// bk's slices in the ring.
+    template <typename Insert>
+    void layer(int bk, bool threaded, Range& range, std::size_t& kept, Insert&& insert)
+    {
+        tbb::combinable<Range> ranges;
+        forRange(mBx * mBy, threaded, [&](int b0, int b1) {
+            Range& r = ranges.local();
+            for (int b = b0; b < b1; ++b) block(bk, b, r);
+        });
+        ranges.combine_each([&](const Range& r) { range.add(r); });
+        for (const auto& leaf : mLeaves) kept += leaf != nullptr;
+        insert(mLeaves, mTiles);
+    }
+
+private:
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+
+    /// Per block of a layer: the min/max over the x- and y-dilated box of each part (own slices,
+    /// top kHalo, bottom kHalo), and the min/max/sum of its own finite values.
+    struct Summary {
+        std::array<std::vector<W>, 3> lo, hi;
+        std::vector<W> blockLo, blockHi;
+        std::vector<typename S::BlockSum> blockSum;
+        void resize(std::size_t blocks)
+        {
+            for (int p = 0; p < 3; ++p) lo[p].resize(blocks), hi[p].resize(blocks);
+            blockLo.resize(blocks), blockHi.resize(blocks), blockSum.resize(blocks);
+        }
+    };
+    Summary& summary(int bk) { return mSummaries[std::size_t(bk % 3)]; }
+
+    /// body(lo, hi) over [0, n): in parallel chunks, or once.
+    template <typename Body>
+    static void forRange(int n, bool threaded, Body&& body)
+    {
+        if (!threaded) return body(0, n);
+        tbb::parallel_for(tbb::blocked_range<int>(0, n), [&](const tbb::blocked_range<int>& r) { body(r.begin(), r.end()); });
+    }
+
+    static bool hasPart(LayerPart part, int p)
+    {
+        return part == LayerPart::Own || (p == 1 && part == LayerPart::Top) || (p == 2 && part == LayerPart::Bottom);
+    }
+
+    /// Row y of the layer's slices: per column and part, the z min/max (mColLo/Hi[p]); with the
+    /// own part, the min/max/sum of the finite values (mOwnLo/Hi, mOwnSum).
+    void row(int bk, LayerPart part, int y, std::vector<float>& check)
+    {
+        const int nx = mDims.x();
+        const std::size_t offset = std::size_t(y) * nx;
+        const auto [z0, z1] = slices(bk, part);
+        const std::pair<int, int> range[3] = {slices(bk, LayerPart::Own), slices(bk, LayerPart::Top),
+            slices(bk, LayerPart::Bottom)};
+        const bool own = part == LayerPart::Own;
+        for (int p = 0; p < 3; ++p) {
+            if (!hasPart(part, p)) continue;
+            std::fill_n(&mColLo[p][offset], nx, S::kHigh), std::fill_n(&mColHi[p][offset], nx, S::kLow);
+        }
+        std::fill(check.begin(), check.end(), 0.0f);
+        if (own) {
+            if constexpr (S::kFloat) std::fill_n(&mOwnLo[offset], nx, S::kHigh), std::fill_n(&mOwnHi[offset], nx, S::kLow);
+            std::fill_n(&mOwnSum[offset], nx, typename S::ColumnSum(0));
+        }
+        for (int z = z0; z < z1; ++z) {
+            const W* v = slot(z) + offset;
+            const auto in = [z](const std::pair<int, int>& r) { return z >= r.first && z < r.second; };
+            for (int p = 0; p < 3; ++p) {
+                if (!hasPart(part, p) || !in(range[p])) continue;
+                if (p == 0 && (in(range[1]) || in(range[2]))) continue; // own = top + bottom + the rest
+                W* lo = &mColLo[p][offset];
+                W* hi = &mColHi[p][offset];
+                for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], v[x]), hi[x] = std::max(hi[x], v[x]);
+                if constexpr (S::kFloat) {
+                    float* c = check.data() + std::size_t(p) * nx;
+                    for (int x = 0; x < nx; ++x) c[x] += v[x] - v[x];
+                }
+            }
+            if (!own) continue;
+            typename S::ColumnSum* sum = &mOwnSum[offset];
+            if constexpr (S::kFloat) {
+                W *oLo = &mOwnLo[offset], *oHi = &mOwnHi[offset];
+                for (int x = 0; x < nx; ++x) {
+                    if (!std::isfinite(v[x])) continue;
+                    oLo[x] = std::min(oLo[x], v[x]), oHi[x] = std::max(oHi[x], v[x]), sum[x] += v[x];
+                }
+            } else {
+                for (int x = 0; x < nx; ++x) sum[x] += v[x];
+            }
+        }
+        if (own) {
+            W *lo = &mColLo[0][offset], *hi = &mColHi[0][offset];
+            for (int p = 1; p < 3; ++p) {
+                const W *pLo = &mColLo[p][offset], *pHi = &mColHi[p][offset];
+                for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], pLo[x]), hi[x] = std::max(hi[x], pHi[x]);
+                if constexpr (S::kFloat) {
+                    for (int x = 0; x < nx; ++x) check[std::size_t(x)] += check[std::size_t(p) * nx + x];
+                }
+            }
+        }
+        if constexpr (S::kFloat) {
+            for (int p = 0; p < 3; ++p) {
+                if (!hasPart(part, p)) continue;
+                for (int x = 0; x < nx; ++x) {
+                    if (check[std::size_t(p) * nx + x] != 0.0f)
+                        mColLo[p][offset + x] = S::kLow, mColHi[p][offset + x] = S::kHigh; // always a leaf
+                }
+            }
+        }
+    }
+
+    /// Block row j of the layer: per part, the min/max over the y-dilated rows (in @a lo, @a hi)
+    /// then over each block's x-dilated columns; with the own part, the blocks' own min/max/sum.
+    void blockRow(int bk, LayerPart part, int j, std::vector<W>& loColumns, std::vector<W>& hiColumns)
+    {
+        // Raw pointers: a store through W = uint8_t may alias a vector's own pointers, which
+        // would keep the loops from being vectorised.
+        W* lo = loColumns.data();
+        W* hi = hiColumns.data();
+        const int nx = mDims.x(), ny = mDims.y();
+        Summary& out = summary(bk);
+        const int y0 = j * kBlock, y1 = std::min(y0 + kBlock, ny);
+        for (int p = 0; p < 3; ++p) {
+            if (!hasPart(part, p)) continue;
+            std::fill_n(lo, nx, S::kHigh), std::fill_n(hi, nx, S::kLow);
+            for (int y = std::max(y0 - kHalo, 0); y < std::min(y1 + kHalo, ny); ++y) {
+                const W* rowLo = &mColLo[p][std::size_t(y) * nx];
+                const W* rowHi = &mColHi[p][std::size_t(y) * nx];
+                for (int x = 0; x < nx; ++x) lo[x] = std::min(lo[x], rowLo[x]), hi[x] = std::max(hi[x], rowHi[x]);
+            }
+            W* outLo = out.lo[p].data() + std::size_t(j) * mBx;
+            W* outHi = out.hi[p].data() + std::size_t(j) * mBx;
+            for (int i = 0; i < mBx; ++i) {
+                W l = S::kHigh, h = S::kLow;
+                for (int x = std::max(i * kBlock - kHalo, 0); x < std::min((i + 1) * kBlock + kHalo, nx); ++x)
+                    l = std::min(l, lo[x]), h = std::max(h, hi[x]);
+                outLo[i] = l, outHi[i] = h;
+            }
+        }
+        if (part != LayerPart::Own) return;
+        // Own values: integers from the own part's min/max (all finite; sums exact in any order),
+        // floating point from the finite min/max and the sums added in (y, x) order.
+        if constexpr (!S::kFloat) {
+            // Down the block row's 8 rows first (vectorised), then across each block's columns.
+            std::vector<typename S::BlockSum> sumColumns(std::size_t(nx), 0);
+            typename S::BlockSum* sums = sumColumns.data();
+            std::fill_n(lo, nx, S::kHigh), std::fill_n(hi, nx, S::kLow);
+            for (int y = y0; y < y1; ++y) {
+                const std::size_t r = std::size_t(y) * nx;
+                const W *rowLo = &mColLo[0][r], *rowHi = &mColHi[0][r];
+                const typename S::ColumnSum* rowSum = &mOwnSum[r];
+                for (int x = 0; x < nx; ++x)
+                    lo[x] = std::min(lo[x], rowLo[x]), hi[x] = std::max(hi[x], rowHi[x]), sums[x] += rowSum[x];
+            }
+            for (int i = 0; i < mBx; ++i) {
+                W l = S::kHigh, h = S::kLow;
+                typename S::BlockSum sum = 0;
+                for (int x = i * kBlock; x < std::min((i + 1) * kBlock, nx); ++x)
+                    l = std::min(l, lo[x]), h = std::max(h, hi[x]), sum += sums[x];
+                const std::size_t b = std::size_t(j) * mBx + i;
+                out.blockLo[b] = l, out.blockHi[b] = h, out.blockSum[b] = sum;
+            }
+            return;
+        }
+        const std::vector<W>& ownLo = mOwnLo;
+        const std::vector<W>& ownHi = mOwnHi;
+        for (int i = 0; i < mBx; ++i) {
+            W l = S::kHigh, h = S::kLow;
+            typename S::BlockSum sum = 0;
+            const int x0 = i * kBlock, x1 = std::min(x0 + kBlock, nx);
+            for (int y = y0; y < y1; ++y) {
+                const std::size_t r = std::size_t(y) * nx;
+                for (int x = x0; x < x1; ++x)
+                    l = std::min(l, ownLo[r + x]), h = std::max(h, ownHi[r + x]), sum += mOwnSum[r + x];
+            }
+            const std::size_t b = std::size_t(j) * mBx + i;
+            out.blockLo[b] = l, out.blockHi[b] = h, out.blockSum[b] = sum;
+        }
+    }
+
+    void block(int bk, int b, Range& range)
+    {
+        const int nx = mDims.x(), ny = mDims.y(), nz = mDims.z();
+        const int x0 = (b % mBx) * kBlock, y0 = (b / mBx) * kBlock, zb0 = bk * kBlock;
+        const int x1 = std::min(x0 + kBlock, nx), y1 = std::min(y0 + kBlock, ny), zb1 = std::min(zb0 + kBlock, nz);
+        const Summary& own = summary(bk);
+        const Summary* below = bk > 0 ? &summary(bk - 1) : nullptr;
+        const Summary* above = bk + 1 < mLayers ? &summary(bk + 1) : nullptr;
+        W lo = own.lo[0][std::size_t(b)], hi = own.hi[0][std::size_t(b)];
+        if (below) lo = std::min(lo, below->lo[1][std::size_t(b)]), hi = std::max(hi, below->hi[1][std::size_t(b)]);
+        if (above) lo = std::min(lo, above->lo[2][std::size_t(b)]), hi = std::max(hi, above->hi[2][std::size_t(b)]);
+        const W oLo = own.blockLo[std::size_t(b)], oHi = own.blockHi[std::size_t(b)];
+        if (oLo <= oHi) range.add(double(oLo)), range.add(double(oHi));
+        mLeaves[std::size_t(b)].reset();
+        if (keepBlock(mRule, double(lo), double(hi), mK)) {
+            auto leaf = std::make_unique<LeafT>(Coord(x0, y0, zb0), 0.0f, /*active=*/true);
+            float* data = leaf->buffer().data(); // offset x << 6 | y << 3 | z
+            for (int l = 0; l < kBlock; ++l) {
+                // voxels outside the data box: the nearest data value, made inactive below
+                const W* slice = slot(std::min(zb0 + l, nz - 1));
+                for (int j = 0; j < kBlock; ++j) {
+                    const W* row = slice + std::size_t(std::min(y0 + j, ny - 1)) * nx;
+                    for (int i = 0; i < kBlock; ++i) data[i << 6 | j << 3 | l] = float(row[std::min(x0 + i, nx - 1)]);
+                }
+            }
+            if (x0 + kBlock > nx || y0 + kBlock > ny || zb0 + kBlock > nz) {
+                for (auto it = leaf->beginValueOn(); it; ++it) {
+                    const Coord c = it.getCoord();
+                    if (c.x() >= nx || c.y() >= ny || c.z() >= nz) it.setValueOff();
+                }
+            }
+            mLeaves[std::size_t(b)] = std::move(leaf);
+            return;
+        }
+        // Tile: the block mean, clamped to the block's own range, so it is on the same side of k
+        // as every value of the block.
+        const double mean = double(own.blockSum[std::size_t(b)]) / (double(x1 - x0) * (y1 - y0) * (zb1 - zb0));
+        mTiles[std::size_t(b)] = std::clamp(float(mean), float(oLo), float(oHi));
+    }
+
+    Coord mDims;
+    std::size_t mSlice;
+    KeepBlocks mRule;
+    double mK;
+    int mBx, mBy, mLayers;
+    std::vector<W> mRing;
+    std::array<std::vector<W>, 3> mColLo, mColHi; // per column and part: z min/max
+    std::vector<W> mOwnLo, mOwnHi;                // floating point: finite own values only
+    std::vector<typename S::ColumnSum> mOwnSum;
+    std::array<Summary, 3> mSummaries; // layers bk - 1, bk, bk + 1 at bk % 3
+    std::vector<std::unique_ptr<LeafT>> mLeaves;
+    std::vector<float> mTiles;
+};
+
+/// Makes the layers [bk0, bk1) with @a layers, reading slices with @a read(z0, z1, out) (out:
+/// the ring slots of z0, contiguous), inner loops in parallel when @a threaded; hands each
+/// layer's blocks to @a insert(bk, leaves, tiles), polling @a poll() before each.
+template <typename W, typename Read, typename Insert, typename Poll>
+void makeLayers(LayerSparsifier<W>& layers, int bk0, int bk1, bool threaded, Read&& read, Insert&& insert,
+    Poll&& poll, Range& range, std::size_t& kept)
+{
+    auto summarise = [&](int bk, LayerPart part) {
+        const auto [z0, z1] = layers.slices(bk, part);
+        read(z0, z1, layers.slot(z0));
+        layers.columns(bk, part, threaded);
+    };
+    if (bk0 >= bk1) return;
+    if (bk0 > 0) summarise(bk0 - 1, LayerPart::Top);
+    summarise(bk0, LayerPart::Own);
+    for (int bk = bk0; bk < bk1; ++bk) {
+        poll();
+        if (bk + 1 < layers.layers()) summarise(bk + 1, bk + 1 < bk1 ? LayerPart::Own : LayerPart::Bottom);
+        layers.layer(bk, threaded, range, kept, [&](auto& leaves, const auto& tiles) { insert(bk, leaves, tiles); });
+    }
+}
+
+/// Adds one layer's blocks (leaves or inactive tiles) to @a tree.
+struct LayerInserter {
+    FloatTree& tree;
+    int bx;
+
+    void operator()(int bk, std::vector<std::unique_ptr<LeafT>>& leaves, const std::vector<float>& tiles) const
+    {
+        openvdb::tree::ValueAccessor<FloatTree> acc(tree);
+        for (std::size_t b = 0; b < leaves.size(); ++b) {
+            if (leaves[b]) {
+                acc.addLeaf(leaves[b].release());
+            } else {
+                const Coord origin(int(b % std::size_t(bx)) * kBlock, int(b / std::size_t(bx)) * kBlock, bk * kBlock);
+                acc.addTile(/*level=*/1, origin, tiles[b], /*active=*/false);
+            }
+        }
+    }
+};
+
 /// Streams @a source in layers of 8 z-slices with a kHalo halo (a rolling window of at most
 /// 14 slices) and builds a tree whose leaves are the kept blocks (see KeepBlocks).
 SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k,
     openvdb::util::NullInterrupter* interrupter)
 {
-    const int nx = source.dims.x(), ny = source.dims.y(), nz = source.dims.z();
-    const std::size_t slice = std::size_t(nx) * ny;
-    const int bx = (nx + kBlock - 1) / kBlock, by = (ny + kBlock - 1) / kBlock,
-              bz = (nz + kBlock - 1) / kBlock;
-    constexpr int kWindow = kBlock + 2 * kHalo;
-    std::vector<float> window(slice * kWindow);
-    int winZ0 = 0, winCount = 0;
-
-    // Per column (x, y): min/max over the layer's dilated z-range (non-finite forces a keep);
-    // sum/min/max over the layer's own slices (tile values, data range).
-    std::vector<float> colLo(slice), colHi(slice), ownLo(slice), ownHi(slice);
-    std::vector<double> ownSum(slice);
-    std::vector<LeafT*> leaves(std::size_t(bx) * by);
-    std::vector<float> tileValues(leaves.size());
-
+    LayerSparsifier<float> layers(source.dims, rule, k);
+    const int bz = layers.layers();
     SparseResult result;
     result.tree = std::make_shared<FloatTree>(0.0f);
-    result.blocks = std::size_t(bx) * by * bz;
-    for (int bk = 0; bk < bz; ++bk) {
-        throwIfInterrupted(interrupter, int(100.0 * bk / bz));
-        const int zb0 = bk * kBlock, zb1 = std::min(zb0 + kBlock, nz);
-        const int needLo = std::max(zb0 - kHalo, 0), needHi = std::min(zb1 + kHalo, nz);
-        if (const int drop = needLo - winZ0; drop > 0) {
-            std::memmove(window.data(), window.data() + drop * slice,
-                (winCount - drop) * slice * sizeof(float));
-            winZ0 = needLo;
-            winCount -= drop;
-        }
-        if (const int have = winZ0 + winCount; have < needHi) {
-            source.read(have, needHi - have, window.data() + winCount * slice);
-            winCount = needHi - winZ0;
-        }
-        const float* win = window.data();
-
-        tbb::parallel_for(tbb::blocked_range<int>(0, ny), [&](const tbb::blocked_range<int>& r) {
-            constexpr float inf = std::numeric_limits<float>::infinity();
-            std::vector<float> check(nx); // v - v: 0, or NaN once a value is not finite
-            for (int y = r.begin(); y != r.end(); ++y) {
-                const std::size_t row = std::size_t(y) * nx;
-                float *lo = &colLo[row], *hi = &colHi[row], *oLo = &ownLo[row], *oHi = &ownHi[row];
-                double* sum = &ownSum[row];
-                std::fill(lo, lo + nx, inf), std::fill(hi, hi + nx, -inf);
-                std::fill(oLo, oLo + nx, inf), std::fill(oHi, oHi + nx, -inf);
-                std::fill(sum, sum + nx, 0.0), std::fill(check.begin(), check.end(), 0.0f);
-                for (int z = needLo; z < needHi; ++z) {
-                    const float* v = win + (z - winZ0) * slice + row;
-                    for (int x = 0; x < nx; ++x) {
-                        lo[x] = std::min(lo[x], v[x]), hi[x] = std::max(hi[x], v[x]);
-                        check[x] += v[x] - v[x];
-                    }
-                    if (z < zb0 || z >= zb1) continue;
-                    for (int x = 0; x < nx; ++x) {
-                        if (!std::isfinite(v[x])) continue;
-                        oLo[x] = std::min(oLo[x], v[x]), oHi[x] = std::max(oHi[x], v[x]), sum[x] += v[x];
-                    }
-                }
-                for (int x = 0; x < nx; ++x) {
-                    if (check[x] != 0.0f) lo[x] = -inf, hi[x] = inf; // non-finite: always a leaf
-                }
-            }
-        });
-
-        tbb::parallel_for(tbb::blocked_range<int>(0, bx * by), [&](const tbb::blocked_range<int>& r) {
-            for (int b = r.begin(); b != r.end(); ++b) {
-                const int x0 = (b % bx) * kBlock, y0 = (b / bx) * kBlock;
-                const int x1 = std::min(x0 + kBlock, nx), y1 = std::min(y0 + kBlock, ny);
-                float lo = colLo[std::size_t(y0) * nx + x0], hi = colHi[std::size_t(y0) * nx + x0];
-                for (int y = std::max(y0 - kHalo, 0); y < std::min(y1 + kHalo, ny); ++y) {
-                    for (int x = std::max(x0 - kHalo, 0); x < std::min(x1 + kHalo, nx); ++x) {
-                        lo = std::min(lo, colLo[std::size_t(y) * nx + x]);
-                        hi = std::max(hi, colHi[std::size_t(y) * nx + x]);
-                    }
-                }
-                leaves[b] = nullptr;
-                if (keepBlock(rule, lo, hi, k)) {
-                    auto* leaf = new LeafT(Coord(x0, y0, zb0), 0.0f, /*active=*/true);
-                    float* data = leaf->buffer().data(); // offset x << 6 | y << 3 | z
-                    for (int l = 0; l < kBlock; ++l) {
-                        // voxels outside the data box: the nearest data value, made inactive below
-                        const int z = std::min(zb0 + l, nz - 1);
-                        for (int j = 0; j < kBlock; ++j) {
-                            const float* row = win + (z - winZ0) * slice + std::size_t(std::min(y0 + j, ny - 1)) * nx;
-                            for (int i = 0; i < kBlock; ++i) data[i << 6 | j << 3 | l] = row[std::min(x0 + i, nx - 1)];
-                        }
-                    }
-                    if (x0 + kBlock > nx || y0 + kBlock > ny || zb0 + kBlock > nz) {
-                        for (auto it = leaf->beginValueOn(); it; ++it) {
-                            const Coord c = it.getCoord();
-                            if (c.x() >= nx || c.y() >= ny || c.z() >= nz) it.setValueOff();
-                        }
-                    }
-                    leaves[b] = leaf;
-                    continue;
-                }
-                // Tile: the block mean, clamped to the block's own range, so it is on the
-                // same side of k as every value of the block.
-                float oLo = std::numeric_limits<float>::infinity(), oHi = -oLo;
-                double sum = 0.0;
-                for (int y = y0; y < y1; ++y) {
-                    for (int x = x0; x < x1; ++x) {
-                        const std::size_t c = std::size_t(y) * nx + x;
-                        oLo = std::min(oLo, ownLo[c]), oHi = std::max(oHi, ownHi[c]), sum += ownSum[c];
-                    }
-                }
-                const double mean = sum / (double(x1 - x0) * (y1 - y0) * (zb1 - zb0));
-                tileValues[b] = std::clamp(float(mean), oLo, oHi);
-            }
-        });
-
-        for (int b = 0; b < bx * by; ++b) {
-            const Coord origin((b % bx) * kBlock, (b / bx) * kBlock, zb0);
-            if (leaves[b]) {
-                result.tree->addLeaf(leaves[b]);
-                ++result.kept;
-            } else {
-                result.tree->addTile(/*level=*/1, origin, tileValues[b], /*active=*/false);
-            }
-        }
-        for (std::size_t c = 0; c < slice; ++c) {
-            if (ownLo[c] <= ownHi[c]) result.range.add(ownLo[c]), result.range.add(ownHi[c]);
-        }
-    }
+    result.blocks = std::size_t(layers.blocksPerLayer()) * bz;
+    const LayerInserter insert{*result.tree, (source.dims.x() + kBlock - 1) / kBlock};
+    int bk = 0;
+    makeLayers(layers, 0, bz, /*threaded=*/true, [&](int z0, int z1, float* out) { source.read(z0, z1 - z0, out); },
+        insert, [&] { throwIfInterrupted(interrupter, int(100.0 * bk++ / bz)); }, result.range, result.kept);
     if (result.range.min <= result.range.max) {
         result.tree->root().setBackground(float(result.range.min), /*updateChildNodes=*/false);
     }
     return result;
 }
 
-/// Isovalue, sparse tree, transform and data-box metadata for a dense source.
-LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
-    openvdb::util::NullInterrupter* interrupter)
+LoadedVolume denseVolume(SparseResult&& sparse, const Coord& dims, float isovalue)
 {
-    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
-    SparseResult sparse = sparsify(source, request.keep, isovalue, interrupter);
     const Range& range = sparse.range;
     if (!(range.min <= range.max)) throw InputError("the data has no finite value");
     if (!(range.min < isovalue && isovalue <= range.max)) {
@@ -263,17 +483,189 @@ LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float
     }
     LoadedVolume volume;
     volume.grid = openvdb::FloatGrid::create(sparse.tree);
-    setDataBounds(*volume.grid, openvdb::CoordBBox(Coord(0), source.dims - Coord(1)));
+    setDataBounds(*volume.grid, openvdb::CoordBBox(Coord(0), dims - Coord(1)));
     volume.isovalue = isovalue;
     volume.denseBlocks = sparse.blocks;
     volume.keptBlocks = sparse.kept;
-    volume.description = std::to_string(source.dims.x()) + "x" + std::to_string(source.dims.y())
-        + "x" + std::to_string(source.dims.z()) + ", range [" + fmt(range.min) + ", "
+    volume.description = std::to_string(dims.x()) + "x" + std::to_string(dims.y())
+        + "x" + std::to_string(dims.z()) + ", range [" + fmt(range.min) + ", "
         + fmt(range.max) + "], " + std::to_string(sparse.kept) + " of "
         + std::to_string(sparse.blocks) + " 8^3 blocks kept as leaves";
     return volume;
 }
 
+/// Isovalue, sparse tree, transform and data-box metadata for a dense source.
+LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
+    return denseVolume(sparsify(source, request.keep, isovalue, interrupter), source.dims, isovalue);
+}
+
+
+// ---- Raw scans by slabs (RawSlabReader; parallel over slabs) ------------------------------
+
+/// Calls @a f(W{}) with the sparsifier's sample type of a raw scan's @a type.
+template <typename F>
+decltype(auto) withRawSamples(SampleType type, F&& f)
+{
+    switch (type) {
+    case SampleType::UInt8: return f(std::uint8_t{});
+    case SampleType::UInt16: return f(std::uint16_t{});
+    case SampleType::Int16: return f(std::int16_t{});
+    case SampleType::Float32:
+    case SampleType::Float64: return f(float{});
+    default: break;
+    }
+    throw InputError(std::string("raw scans do not take ") + toString(type) + " samples");
+}
+
+/// Reads slices [z0, z1) of @a reader as W: in place when W is the stored type (after a byte
+/// swap on a big-endian host), else through @a bytes (float64 rounded to float).
+template <typename W>
+void readAs(const RawSlabReader& reader, int z0, int z1, W* out, std::vector<char>& bytes)
+{
+    const std::size_t n = std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(z1 - z0);
+    if (reader.type() == SampleType::Float64) {
+        bytes.resize(n * sizeof(double));
+        reader.readSlices(z0, z1, bytes.data());
+        for (std::size_t i = 0; i < n; ++i) {
+            char b[sizeof(double)];
+            std::memcpy(b, bytes.data() + i * sizeof(double), sizeof(double));
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+            std::reverse(b, b + sizeof(double));
+#endif
+            double v;
+            std::memcpy(&v, b, sizeof(double));
+            out[i] = W(v);
+        }
+        return;
+    }
+    reader.readSlices(z0, z1, reinterpret_cast<char*>(out));
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    if constexpr (sizeof(W) > 1) {
+        char* p = reinterpret_cast<char*>(out);
+        for (std::size_t i = 0; i < n; ++i) std::reverse(p + i * sizeof(W), p + (i + 1) * sizeof(W));
+    }
+#endif
+}
+
+/// Runs @a body(z0, z1) over slabs of the slices [z0, z1) in parallel.
+template <typename Body>
+void forSlabs(int z0, int z1, Body&& body)
+{
+    tbb::parallel_for(tbb::blocked_range<int>(z0, z1, kBlock),
+        [&](const tbb::blocked_range<int>& r) { body(r.begin(), r.end()); });
+}
+
+void RawStats::add(const RawStats& other)
+{
+    range.add(other.range);
+    if (counts.size() < other.counts.size()) counts.resize(other.counts.size(), 0);
+    for (std::size_t i = 0; i < other.counts.size(); ++i) counts[i] += other.counts[i];
+}
+
+RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange)
+{
+    return withRawSamples(reader.type(), [&](auto sample) {
+        using W = decltype(sample);
+        tbb::enumerable_thread_specific<std::pair<std::vector<W>, std::vector<char>>> buffers;
+        tbb::enumerable_thread_specific<RawStats> parts;
+        forSlabs(z0, z1, [&](int a, int b) {
+            auto& [values, bytes] = buffers.local();
+            values.resize(std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(b - a));
+            readAs(reader, a, b, values.data(), bytes);
+            RawStats& part = parts.local();
+            if constexpr (Samples<W>::kFloat) {
+                if (!histogramRange) {
+                    for (const W v : values)
+                        if (std::isfinite(v)) part.range.add(v);
+                    return;
+                }
+                part.counts.resize(256, 0);
+                for (const W v : values)
+                    if (std::isfinite(v)) ++part.counts[histogramBin(v, histogramRange->min, histogramRange->max)];
+            } else {
+                constexpr std::size_t kValues = std::size_t(1) << (8 * sizeof(W));
+                part.counts.resize(kValues, 0);
+                // Four 32-bit tallies (a slab has fewer than 2^32 samples) break the chain of
+                // increments of one counter when neighbouring samples are equal.
+                constexpr int kWays = sizeof(W) == 1 ? 4 : 1;
+                std::vector<std::uint32_t> tally(kWays * kValues, 0);
+                const std::size_t n = values.size(), lowest = std::size_t(-std::ptrdiff_t(std::numeric_limits<W>::lowest()));
+                std::size_t i = 0;
+                for (; i + kWays <= n; i += kWays)
+                    for (int w = 0; w < kWays; ++w) ++tally[w * kValues + std::size_t(values[i + w] + lowest)];
+                for (; i < n; ++i) ++tally[std::size_t(values[i] + lowest)];
+                for (int w = 0; w < kWays; ++w)
+                    for (std::size_t v = 0; v < kValues; ++v) part.counts[v] += tally[w * kValues + v];
+            }
+        });
+        RawStats stats;
+        for (const RawStats& part : parts) stats.add(part);
+        if constexpr (!Samples<W>::kFloat) {
+            // The range from the counted values (every integer value is finite).
+            for (std::size_t i = 0; i < stats.counts.size(); ++i)
+                if (stats.counts[i]) stats.range.add(double(std::numeric_limits<W>::lowest()) + double(i));
+        }
+        return stats;
+    });
+}
+
+double otsuOfRawStats(const RawStats& stats, SampleType type)
+{
+    const Range& range = stats.range;
+    if (!(range.min < range.max))
+        throw InputError("constant data (every value is " + fmt(range.min) + "): no surface and no default "
+                         "isovalue; nothing to mesh");
+    std::array<std::uint64_t, 256> histogram{};
+    if (type == SampleType::Float32 || type == SampleType::Float64) {
+        std::copy(stats.counts.begin(), stats.counts.end(), histogram.begin());
+    } else {
+        const double lowest = type == SampleType::Int16 ? -32768.0 : 0.0;
+        for (std::size_t i = 0; i < stats.counts.size(); ++i)
+            if (stats.counts[i]) histogram[histogramBin(lowest + double(i), range.min, range.max)] += stats.counts[i];
+    }
+    return otsuThreshold(histogram, range.min, range.max);
+}
+
+SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, KeepBlocks rule, double isovalue,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    const Coord dims = reader.dims();
+    const int bx = (dims.x() + kBlock - 1) / kBlock, by = (dims.y() + kBlock - 1) / kBlock;
+    SparseResult result;
+    result.tree = std::make_shared<FloatTree>(0.0f);
+    result.blocks = std::size_t(bx) * by * std::size_t(std::max(layer1 - layer0, 0));
+    const LayerInserter insert{*result.tree, bx};
+    std::mutex treeMutex;
+    std::atomic<int> layersDone{0};
+    // Runs of layers, about four per thread: each run reads kHalo slices more on either side.
+    const int threads = tbb::this_task_arena::max_concurrency();
+    const int run = std::max(2, (layer1 - layer0 + 4 * threads - 1) / (4 * threads));
+    withRawSamples(reader.type(), [&](auto sample) {
+        using W = decltype(sample);
+        tbb::enumerable_thread_specific<LayerSparsifier<W>> sparsifiers(dims, rule, isovalue);
+        tbb::enumerable_thread_specific<std::vector<char>> bytes;
+        tbb::enumerable_thread_specific<std::pair<Range, std::size_t>> totals;
+        tbb::parallel_for(tbb::blocked_range<int>(layer0, layer1, run), [&](const tbb::blocked_range<int>& r) {
+            auto& [range, kept] = totals.local();
+            makeLayers(sparsifiers.local(), r.begin(), r.end(), /*threaded=*/false,
+                [&](int z0, int z1, W* out) { readAs(reader, z0, z1, out, bytes.local()); },
+                [&](int bk, auto& leaves, const auto& tiles) {
+                    const std::lock_guard<std::mutex> lock(treeMutex);
+                    insert(bk, leaves, tiles);
+                },
+                [&] { throwIfInterrupted(interrupter, int(100.0 * layersDone++ / std::max(layer1 - layer0, 1))); },
+                range, kept);
+        });
+        for (const auto& [range, kept] : totals) result.range.add(range), result.kept += kept;
+    });
+    if (result.range.min <= result.range.max) {
+        result.tree->root().setBackground(float(result.range.min), /*updateChildNodes=*/false);
+    }
+    return result;
+}
 
 } // namespace sources_internal
 
