@@ -97,7 +97,7 @@ public:
     std::vector<Words> allgather(const Words& words) const
     {
         const int n = int(words.size());
-        std::vector<int> counts(std::size_t(mSize)), displs(std::size_t(mSize), 0);
+        std::vector<int> counts(static_cast<std::size_t>(mSize)), displs(static_cast<std::size_t>(mSize), 0);
         MPI_Allgather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, mComm);
         for (int r = 1; r < mSize; ++r) displs[std::size_t(r)] = displs[std::size_t(r) - 1] + counts[std::size_t(r) - 1];
         Words all(std::size_t(displs.back() + counts.back()));
@@ -109,7 +109,7 @@ public:
     std::vector<Words> gather(const Words& words) const
     {
         const int n = int(words.size());
-        std::vector<int> counts(std::size_t(mSize)), displs(std::size_t(mSize), 0);
+        std::vector<int> counts(static_cast<std::size_t>(mSize)), displs(static_cast<std::size_t>(mSize), 0);
         MPI_Gather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, 0, mComm);
         Words all;
         if (mRank == 0) {
@@ -123,8 +123,8 @@ public:
     /// Sends out[r] to rank r and returns what each rank sent here (collective).
     std::vector<Words> exchange(const std::vector<Words>& out) const
     {
-        std::vector<int> sendCounts(std::size_t(mSize)), recvCounts(std::size_t(mSize));
-        std::vector<int> sendDispls(std::size_t(mSize), 0), recvDispls(std::size_t(mSize), 0);
+        std::vector<int> sendCounts(static_cast<std::size_t>(mSize)), recvCounts(static_cast<std::size_t>(mSize));
+        std::vector<int> sendDispls(static_cast<std::size_t>(mSize), 0), recvDispls(static_cast<std::size_t>(mSize), 0);
         Words send;
         for (int r = 0; r < mSize; ++r) {
             sendCounts[std::size_t(r)] = int(out[std::size_t(r)].size());
@@ -357,10 +357,10 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         ranks.step([&] { mesher.setOffsets(vertexBegin[std::size_t(rank)], triangleBegin[std::size_t(rank)], totalVertices); });
         // The masks of the + neighbours that later ranks own.
         const std::vector<std::int64_t> foreign = mesher.foreignBlocks();
-        std::vector<Words> requests(std::size_t(size));
+        std::vector<Words> requests(static_cast<std::size_t>(size));
         for (std::int64_t b : foreign) requests[std::size_t(plan->pieceOfBlock(b))].push_back(std::uint64_t(b));
         const std::vector<Words> asked = ranks.exchange(requests);
-        std::vector<Words> answers(std::size_t(size));
+        std::vector<Words> answers(static_cast<std::size_t>(size));
         ranks.step([&] {
             for (int r = 0; r < size; ++r)
                 for (std::uint64_t b : asked[std::size_t(r)]) {
@@ -394,10 +394,10 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         const auto ownerOf = [&](std::uint64_t g) {
             return int(std::upper_bound(vertexBegin.begin(), vertexBegin.end(), g) - vertexBegin.begin()) - 1;
         };
-        std::vector<Words> wanted(std::size_t(size));
+        std::vector<Words> wanted(static_cast<std::size_t>(size));
         for (std::uint32_t g : ghosts) wanted[std::size_t(ownerOf(g))].push_back(g);
         const std::vector<Words> wantedHere = ranks.exchange(wanted);
-        std::vector<Words> positions(std::size_t(size));
+        std::vector<Words> positions(static_cast<std::size_t>(size));
         for (int r = 0; r < size; ++r)
             for (std::uint64_t g : wantedHere[std::size_t(r)]) {
                 std::uint64_t words[2] = {0, 0};
@@ -679,3 +679,4 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
 }
 
 } // namespace isouq::nodes
+

@@ -28,7 +28,7 @@ struct BrickMesherData {
     std::vector<std::uint64_t> vertexOffsets; // per block of the order: the whole mesh's
     std::vector<std::uint64_t> triangleOffsets; // per block of the piece, then the total
     EdgeMasks masks;                          // slots for the order's blocks
-    std::uint64_t firstVertex = 0, firstTriangle = 0;
+    std::uint64_t vertices = 0, firstVertex = 0, firstTriangle = 0;
     bool counted = false, placed = false;
 };
 
@@ -42,12 +42,15 @@ BrickPlan::BrickPlan(const openvdb::FloatGrid& grid, int pieces, bool threaded)
     if (pieces < 1) OPENVDB_THROW(openvdb::ValueError, "a brick plan needs at least one piece");
     buildBlockSet(grid.tree(), mData->blocks, threaded);
     const std::vector<Coord>& origins = mData->blocks.origins;
-    std::vector<std::uint64_t> prefix(origins.size() + 1, 0);
-    openvdb::tree::ValueAccessor<const openvdb::FloatTree> acc(grid.tree());
-    for (std::size_t b = 0; b < origins.size(); ++b) {
-        const auto* leaf = acc.probeConstLeaf(origins[b]); // topology only: the value mask
-        prefix[b + 1] = prefix[b] + 1 + (leaf ? leaf->onVoxelCount() : 0);
+    // Leaves by iteration, not by accessor: an accessor that finds a leaf caches its values,
+    // which loads a delay-loaded buffer. The value masks are topology.
+    std::vector<std::uint64_t> prefix(origins.size() + 1, 1);
+    prefix[0] = 0;
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+        const std::int32_t b = mData->blocks.find(leaf->origin());
+        if (b >= 0) prefix[std::size_t(b) + 1] += leaf->onVoxelCount();
     }
+    for (std::size_t b = 0; b < origins.size(); ++b) prefix[b + 1] += prefix[b];
     const std::uint64_t total = prefix.back();
     mData->bounds.assign(std::size_t(pieces) + 1, origins.size());
     mData->weights.assign(std::size_t(pieces), 0);
@@ -139,6 +142,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
         if (!d.counts[i].empty()) d.masks.slot[d.begin + i] = nonEmpty++;
     }
     d.vertexOffsets[d.end] = vertices;
+    d.vertices = vertices;
     d.masks.masks.resize(std::size_t(nonEmpty));
     for (auto& list : found) {
         for (const auto& [block, mask] : list) d.masks.masks[std::size_t(d.masks.slot[std::size_t(block)])] = mask;
@@ -147,7 +151,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
     d.counted = true;
 }
 
-std::uint64_t BrickMesher::vertexCount() const { return mData->vertexOffsets[mData->end]; }
+std::uint64_t BrickMesher::vertexCount() const { return mData->vertices; }
 std::uint64_t BrickMesher::triangleCount() const { return mData->triangleOffsets.back(); }
 std::uint64_t BrickMesher::firstVertex() const { return mData->firstVertex; }
 std::uint64_t BrickMesher::firstTriangle() const { return mData->firstTriangle; }
