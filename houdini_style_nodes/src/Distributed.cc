@@ -67,9 +67,10 @@ public:
     MPI_Comm comm() const { return mComm; }
 
     /// Runs @a body, then agrees with the other ranks: on a failure anywhere the lowest failing
-    /// rank keeps its message, and every rank throws Stop (2 for bad input, 1 interrupted).
+    /// rank keeps its message (after @a where, the one-process graph's "node 'ID' (TYPE): "),
+    /// and every rank throws Stop (2 for bad input, 1 interrupted).
     template <typename Body>
-    void step(Body&& body)
+    void step(Body&& body, const char* where = "")
     {
         int status = 0;
         std::string message;
@@ -79,7 +80,7 @@ public:
             status = 1;
         } catch (const std::exception& e) {
             status = mInterrupted() ? 1 : 2;
-            message = e.what();
+            message = where + std::string(e.what());
         }
         if (status == 0 && mInterrupted()) status = 1;
         int worst = 0;
@@ -269,6 +270,10 @@ std::vector<const std::vector<float>*> summaryColumns(const Mesh& mesh, std::vec
     return columns;
 }
 
+// Where the one-process graph (MeshGraph.cc) reports a failure of the same work.
+constexpr const char* kRead = "node 'load' (read_volume): ";
+constexpr const char* kMesh = "node 'mesh' (mesh): ";
+
 struct PieceTimes {
     double load = 0, check = 0, mesh = 0, measure = 0, write = 0;
 };
@@ -301,6 +306,8 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         ranks.step([&] {
             checkSupported(request);
             if (rank == 0) checkOutputs(request);
+        });
+        ranks.step([&] {
             VolumeRequest read;
             read.input = request.read.value("input", std::string());
             if (request.read.contains("grid") && !request.read["grid"].is_null()) read.gridName = request.read["grid"].get<std::string>();
@@ -309,7 +316,7 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             read.delayLoad = true;
             volume = loadVolume(read, interrupter);
             plan = std::make_unique<BrickPlan>(*volume.grid, size);
-        });
+        }, kRead);
         const openvdb::FloatGrid& grid = *volume.grid;
         const auto mine = [&](const openvdb::Coord& leafOrigin) { return plan->pieceOfBlock(plan->blockOf(leafOrigin)) == rank; };
         times.load = msSince(start);
@@ -317,20 +324,20 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         // ---- check ---------------------------------------------------------------------------
         start = Clock::now();
         ActiveValueScan scan;
-        ranks.step([&] { scan = scanActiveValues(grid, mine, rank == 0); });
+        ranks.step([&] { scan = scanActiveValues(grid, mine, rank == 0); }, kRead);
         const std::vector<Words> scans = ranks.allgather(packScan(scan));
         scan = ActiveValueScan();
         for (const Words& w : scans) scan.join(unpackScan(w));
         if (std::isnan(volume.isovalue)) { // a fog volume without --isovalue: Otsu of the whole
             std::array<std::uint64_t, 256> histogram{}, total{};
-            ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); });
+            ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); }, kRead);
             MPI_Allreduce(histogram.data(), total.data(), 256, MPI_UINT64_T, MPI_SUM, comm);
-            ranks.step([&] { volume.isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total)); });
+            ranks.step([&] { volume.isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total)); }, kRead);
         }
         ranks.step([&] {
             const std::string problem = checkScalarVolume(grid, volume.isovalue, scan);
             if (!problem.empty()) throw InputError(problem);
-        });
+        }, kRead);
         MeshSettings settings;
         settings.isovalue = request.mesh.contains("isovalue") && !request.mesh["isovalue"].is_null()
             ? request.mesh["isovalue"].get<float>() : volume.isovalue;
@@ -340,13 +347,13 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             const auto m = edgeMethodFromString(method);
             if (!m) throw InputError("unknown method '" + method + "'");
             settings.method = *m;
-        });
+        }, kMesh);
         times.check = msSince(start);
 
         // ---- mesh ----------------------------------------------------------------------------
         start = Clock::now();
         BrickMesher mesher(grid, settings, *plan, rank);
-        ranks.step([&] { mesher.count(interrupter); });
+        ranks.step([&] { mesher.count(interrupter); }, kMesh);
         const std::vector<Words> counts = ranks.allgather({mesher.vertexCount(), mesher.triangleCount()});
         std::vector<std::uint64_t> vertexBegin(std::size_t(size) + 1, 0), triangleBegin(std::size_t(size) + 1, 0);
         for (int r = 0; r < size; ++r) {
@@ -354,7 +361,7 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             triangleBegin[std::size_t(r) + 1] = triangleBegin[std::size_t(r)] + counts[std::size_t(r)][1];
         }
         const std::uint64_t totalVertices = vertexBegin.back(), totalTriangles = triangleBegin.back();
-        ranks.step([&] { mesher.setOffsets(vertexBegin[std::size_t(rank)], triangleBegin[std::size_t(rank)], totalVertices); });
+        ranks.step([&] { mesher.setOffsets(vertexBegin[std::size_t(rank)], triangleBegin[std::size_t(rank)], totalVertices); }, kMesh);
         // The masks of the + neighbours that later ranks own.
         const std::vector<std::int64_t> foreign = mesher.foreignBlocks();
         std::vector<Words> requests(static_cast<std::size_t>(size));
@@ -377,7 +384,7 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
                     mesher.learnBlock(std::int64_t(requests[std::size_t(r)][i]),
                         answered[std::size_t(r)].data() + i * BrickMesher::kBlockWords);
             mesher.fill(piece, interrupter);
-        });
+        }, kMesh);
         times.mesh = msSince(start);
 
         // ---- measure -------------------------------------------------------------------------

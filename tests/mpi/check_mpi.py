@@ -84,8 +84,19 @@ def bad_input(args):
     work = os.path.join(args.work, f"bad_np{args.np}")
     os.makedirs(work, exist_ok=True)
     out = os.path.join(work, "out.ply")
+    truncated = os.path.join(work, "truncated.vdb")
+    with open(os.path.join(args.data, "sphere.vdb"), "rb") as f:
+        open(truncated, "wb").write(f.read()[:300000])
+    # A non-finite value that only the last rank reads (x > 0 is at the end of the block order).
+    nan_vdb = os.path.join(work, "nan.vdb")
+    import pyopenvdb as vdb
+    g = vdb.read(os.path.join(args.data, "sphere.vdb"), "ls_sphere")
+    g.getAccessor().setValueOn((60, 1, 2), float("nan"))
+    vdb.write(nan_vdb, grids=[g])
     cases = [
+        [nan_vdb],
         [os.path.join(work, "missing.vdb")],
+        [truncated],
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
         [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],
@@ -97,6 +108,10 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
+        if "--hidden-features" not in extra:  # the one-process run says the same
+            one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+            if one.returncode != 2 or one.stderr.strip() != lines[0]:
+                sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
         print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
 
 
