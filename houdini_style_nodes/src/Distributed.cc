@@ -385,7 +385,57 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
                         answered[std::size_t(r)].data() + i * BrickMesher::kBlockWords);
             mesher.fill(piece, interrupter);
         }, kMesh);
+        // The values are meshed: what this rank read, then the grid goes (as in the one-process
+        // graph, which frees the volume after its last reader).
+        const std::uint64_t voxelsRead = loadedLeafVoxels(grid);
+        volume.grid.reset();
         times.mesh = msSince(start);
+
+        // ---- write: the rows now, the file appears with the summary -------------------------
+        start = Clock::now();
+        PlyOptions options;
+        options.version = ISOUQ_VERSION_STRING;
+        options.isovalue = settings.isovalue;
+        options.method = linearOnly ? std::string("linear") : method;
+        if (!volume.geometry.empty()) options.comments.push_back("isouq geometry " + volume.geometry);
+        const std::pair<std::size_t, std::size_t> strides = plyRowBytes(piece);
+        const std::size_t vStride = strides.first, fStride = strides.second;
+        std::unique_ptr<SharedPlyFile> file;
+        std::string header;
+        ranks.step([&] {
+            if (rank != 0) return;
+            file = std::make_unique<SharedPlyFile>(request.output);
+            header = file->header(piece, totalVertices, totalTriangles, options);
+        });
+        std::string temp = rank == 0 ? file->temporaryPath() : std::string();
+        std::uint64_t lengths[2] = {temp.size(), header.size()};
+        MPI_Bcast(lengths, 2, MPI_UINT64_T, 0, comm);
+        temp.resize(lengths[0]);
+        MPI_Bcast(temp.data(), int(lengths[0]), MPI_CHAR, 0, comm);
+        const std::uint64_t headerBytes = lengths[1];
+        MPI_File fh = MPI_FILE_NULL;
+        struct CloseGuard { // collective: every rank unwinds through it
+            MPI_File& f;
+            ~CloseGuard() { if (f != MPI_FILE_NULL) MPI_File_close(&f); }
+        } closeGuard{fh};
+        const int opened = MPI_File_open(comm, temp.c_str(), MPI_MODE_WRONLY, MPI_INFO_NULL, &fh);
+        ranks.step([&] {
+            if (opened != MPI_SUCCESS) throw IoError("cannot write " + request.output + ": MPI_File_open failed");
+            const auto put = [&](std::uint64_t offset, const char* data, std::size_t bytes) {
+                if (MPI_File_write_at(fh, MPI_Offset(offset), data, int(bytes), MPI_BYTE, MPI_STATUS_IGNORE) != MPI_SUCCESS)
+                    throw IoError("cannot write " + request.output + ": MPI_File_write_at failed");
+            };
+            if (rank == 0) put(0, header.data(), header.size());
+            std::uint64_t vertexAt = headerBytes + vertexBegin[std::size_t(rank)] * vStride;
+            std::uint64_t faceAt = headerBytes + totalVertices * vStride + triangleBegin[std::size_t(rank)] * fStride;
+            plyPieceRows(piece, totalVertices, [&](bool faces, const char* data, std::size_t bytes) {
+                std::uint64_t& at = faces ? faceAt : vertexAt;
+                put(at, data, bytes);
+                at += bytes;
+            });
+        });
+        MPI_File_close(&fh);
+        times.write = msSince(start);
 
         // ---- measure -------------------------------------------------------------------------
         start = Clock::now();
@@ -412,8 +462,8 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
                 positions[std::size_t(r)].insert(positions[std::size_t(r)].end(), words, words + 2);
             }
         const std::vector<Words> got = ranks.exchange(positions);
-        Mesh local; // the piece with its ghosts appended, triangles in local indices
-        local.positions = piece.positions;
+        // The piece becomes its own small mesh: ghosts appended, triangles in local indices.
+        Mesh& local = piece;
         local.positions.resize(nLocal + ghosts.size());
         for (int r = 0; r < size; ++r)
             for (std::size_t i = 0; i < wanted[std::size_t(r)].size(); ++i) {
@@ -425,9 +475,8 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             if (g >= v0 && g < v0 + nLocal) return std::uint32_t(g - v0);
             return std::uint32_t(nLocal + std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin()));
         };
-        local.triangles.resize(piece.triangles.size());
-        for (std::size_t f = 0; f < piece.triangles.size(); ++f)
-            for (int c = 0; c < 3; ++c) local.triangles[f][c] = localIndex(piece.triangles[f][c]);
+        for (openvdb::Vec3I& t : local.triangles)
+            for (int c = 0; c < 3; ++c) t[c] = localIndex(t[c]);
         const auto globalIndex = [&](std::uint32_t l) -> std::uint64_t {
             return l < nLocal ? v0 + l : ghosts[l - nLocal];
         };
@@ -455,41 +504,6 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
                 shared[v] = other;
             }
         }
-        MeshTopologyStats topo;
-        std::vector<std::uint32_t> labels;
-        ranks.step([&] {
-            topo = measureTopology(local);
-            labels = componentLabels(local);
-        });
-        // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
-        std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
-        Words componentPairs; // (global vertex, local component) of the shared vertices used
-        for (std::size_t f = 0; f < local.triangles.size(); ++f) {
-            const openvdb::Vec3I& t = local.triangles[f];
-            for (int c = 0; c < 3; ++c) {
-                const std::uint32_t a = t[c], b = t[(c + 1) % 3];
-                if (shared[a]) componentPairs.insert(componentPairs.end(), {globalIndex(a), labels[f]});
-                if (a != b && shared[a] && shared[b])
-                    sharedEdges.emplace_back(std::min(globalIndex(a), globalIndex(b)), std::max(globalIndex(a), globalIndex(b)));
-            }
-        }
-        std::sort(sharedEdges.begin(), sharedEdges.end());
-        Words edgeUses; // (lo, hi, uses)
-        std::size_t localEdges = 0, localBoundary = 0, localNonManifold = 0;
-        for (std::size_t i = 0; i < sharedEdges.size();) {
-            std::size_t j = i + 1;
-            while (j < sharedEdges.size() && sharedEdges[j] == sharedEdges[i]) ++j;
-            edgeUses.insert(edgeUses.end(), {sharedEdges[i].first, sharedEdges[i].second, std::uint64_t(j - i)});
-            ++localEdges;
-            localBoundary += j - i == 1;
-            localNonManifold += j - i > 2;
-            i = j;
-        }
-        const Words tallies = {topo.boundaryEdges - localBoundary, topo.nonManifoldEdges - localNonManifold, topo.components};
-        const std::vector<Words> allTallies = ranks.gather(tallies);
-        const std::vector<Words> allEdges = ranks.gather(edgeUses);
-        const std::vector<Words> allPairs = ranks.gather(componentPairs);
-
         // Area, volume and statistics, carried from rank to rank in the one-process order.
         std::array<double, 3> lo, hi, centre;
         lo.fill(std::numeric_limits<double>::infinity());
@@ -534,6 +548,44 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         if (rank + 1 < size) MPI_Send(carry.data(), carryWords, MPI_UINT64_T, rank + 1, 1, comm);
         if (size > 1 && rank == size - 1) MPI_Send(carry.data(), carryWords, MPI_UINT64_T, 0, 2, comm);
         if (size > 1 && rank == 0) MPI_Recv(carry.data(), carryWords, MPI_UINT64_T, size - 1, 2, comm, MPI_STATUS_IGNORE);
+        // The columns are summed: only positions and triangles are left to measure.
+        const std::size_t summaryColumnCount = columns.size();
+        piece.vertexAttributes.clear();
+
+        MeshTopologyStats topo;
+        std::vector<std::uint32_t> labels;
+        ranks.step([&] {
+            topo = measureTopology(local, &labels, /*geometry=*/false);
+        });
+        // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
+        std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
+        Words componentPairs; // (global vertex, local component) of the shared vertices used
+        for (std::size_t f = 0; f < local.triangles.size(); ++f) {
+            const openvdb::Vec3I& t = local.triangles[f];
+            for (int c = 0; c < 3; ++c) {
+                const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+                if (shared[a]) componentPairs.insert(componentPairs.end(), {globalIndex(a), labels[f]});
+                if (a != b && shared[a] && shared[b])
+                    sharedEdges.emplace_back(std::min(globalIndex(a), globalIndex(b)), std::max(globalIndex(a), globalIndex(b)));
+            }
+        }
+        std::sort(sharedEdges.begin(), sharedEdges.end());
+        Words edgeUses; // (lo, hi, uses)
+        std::size_t localEdges = 0, localBoundary = 0, localNonManifold = 0;
+        for (std::size_t i = 0; i < sharedEdges.size();) {
+            std::size_t j = i + 1;
+            while (j < sharedEdges.size() && sharedEdges[j] == sharedEdges[i]) ++j;
+            edgeUses.insert(edgeUses.end(), {sharedEdges[i].first, sharedEdges[i].second, std::uint64_t(j - i)});
+            ++localEdges;
+            localBoundary += j - i == 1;
+            localNonManifold += j - i > 2;
+            i = j;
+        }
+        const Words tallies = {topo.boundaryEdges - localBoundary, topo.nonManifoldEdges - localNonManifold, topo.components};
+        const std::vector<Words> allTallies = ranks.gather(tallies);
+        const std::vector<Words> allEdges = ranks.gather(edgeUses);
+        const std::vector<Words> allPairs = ranks.gather(componentPairs);
+
         times.measure = msSince(start);
 
         nlohmann::json summary;
@@ -580,7 +632,7 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             summary["degenerate_triangles"] = total.degenerate;
             summary["area"] = total.area;
             summary["enclosed_volume"] = std::abs(total.signedVolume);
-            for (std::size_t c = 0; c < columns.size(); ++c) {
+            for (std::size_t c = 0; c < summaryColumnCount; ++c) {
                 StatisticsSums s;
                 const std::uint64_t* w = carry.data() + 3 + 5 * c;
                 s.lo = doubleOf(w[0]), s.hi = doubleOf(w[1]), s.sum = doubleOf(w[2]), s.sumSq = doubleOf(w[3]);
@@ -604,53 +656,9 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
             }
         }
 
-        // ---- write ---------------------------------------------------------------------------
-        start = Clock::now();
-        PlyOptions options;
-        options.version = ISOUQ_VERSION_STRING;
-        options.isovalue = settings.isovalue;
-        options.method = linearOnly ? std::string("linear") : method;
-        if (!volume.geometry.empty()) options.comments.push_back("isouq geometry " + volume.geometry);
-        const auto [vStride, fStride] = plyRowBytes(piece);
-        std::unique_ptr<SharedPlyFile> file;
-        std::string header;
-        ranks.step([&] {
-            if (rank != 0) return;
-            file = std::make_unique<SharedPlyFile>(request.output);
-            header = file->header(piece, totalVertices, totalTriangles, options);
-        });
-        std::string temp = rank == 0 ? file->temporaryPath() : std::string();
-        std::uint64_t lengths[2] = {temp.size(), header.size()};
-        MPI_Bcast(lengths, 2, MPI_UINT64_T, 0, comm);
-        temp.resize(lengths[0]);
-        MPI_Bcast(temp.data(), int(lengths[0]), MPI_CHAR, 0, comm);
-        const std::uint64_t headerBytes = lengths[1];
-        MPI_File fh = MPI_FILE_NULL;
-        struct CloseGuard { // collective: every rank unwinds through it
-            MPI_File& f;
-            ~CloseGuard() { if (f != MPI_FILE_NULL) MPI_File_close(&f); }
-        } closeGuard{fh};
-        const int opened = MPI_File_open(comm, temp.c_str(), MPI_MODE_WRONLY, MPI_INFO_NULL, &fh);
-        ranks.step([&] {
-            if (opened != MPI_SUCCESS) throw IoError("cannot write " + request.output + ": MPI_File_open failed");
-            const auto put = [&](std::uint64_t offset, const char* data, std::size_t bytes) {
-                if (MPI_File_write_at(fh, MPI_Offset(offset), data, int(bytes), MPI_BYTE, MPI_STATUS_IGNORE) != MPI_SUCCESS)
-                    throw IoError("cannot write " + request.output + ": MPI_File_write_at failed");
-            };
-            if (rank == 0) put(0, header.data(), header.size());
-            std::uint64_t vertexAt = headerBytes + vertexBegin[std::size_t(rank)] * vStride;
-            std::uint64_t faceAt = headerBytes + totalVertices * vStride + triangleBegin[std::size_t(rank)] * fStride;
-            plyPieceRows(piece, totalVertices, [&](bool faces, const char* data, std::size_t bytes) {
-                std::uint64_t& at = faces ? faceAt : vertexAt;
-                put(at, data, bytes);
-                at += bytes;
-            });
-        });
-        MPI_File_close(&fh);
-        times.write = msSince(start);
 
         // The ranks block (SPEC §10), then the files appear together on rank 0.
-        const Words mineWords = {loadedLeafVoxels(grid), mesher.vertexCount(), mesher.triangleCount(),
+        const Words mineWords = {voxelsRead, mesher.vertexCount(), mesher.triangleCount(),
             plan->end(rank) - plan->begin(rank), plan->weight(rank), bitsOf(times.load), bitsOf(times.check),
             bitsOf(times.mesh), bitsOf(times.measure), bitsOf(times.write)};
         const std::vector<Words> perRank = ranks.gather(mineWords);

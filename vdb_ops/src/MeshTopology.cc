@@ -160,14 +160,20 @@ void addTriangleGeometry(const std::vector<openvdb::Vec3s>& positions, const ope
     sums.signedVolume = volume;
 }
 
-MeshTopologyStats measureTopology(const Mesh& mesh)
+MeshTopologyStats measureTopology(const Mesh& mesh) { return measureTopology(mesh, nullptr, true); }
+
+MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry)
 {
     using namespace topology_internal;
     checkIndices(mesh);
     MeshTopologyStats stats;
     // Three independent passes writing disjoint fields of stats.
     tbb::parallel_invoke([&] { countEdges(mesh, stats); },
-        [&] { labelTriangles(mesh, stats.components); }, [&] { measureGeometry(mesh, stats); });
+        [&] {
+            std::vector<std::uint32_t> l = labelTriangles(mesh, stats.components);
+            if (labels) *labels = std::move(l);
+        },
+        [&] { if (geometry) measureGeometry(mesh, stats); });
     return stats;
 }
 

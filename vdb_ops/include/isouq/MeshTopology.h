@@ -28,6 +28,10 @@ struct MeshTopologyStats {
 /// @throw std::invalid_argument if a triangle names a vertex that does not exist.
 MeshTopologyStats measureTopology(const Mesh& mesh);
 
+/// measureTopology that also gives componentLabels() from the same pass, and skips the area,
+/// volume and degenerate triangles unless @a geometry.
+MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry);
+
 /// Area, signed volume and degenerate triangles, summed triangle by triangle in the order
 /// measureTopology sums them, about @a centre (measureTopology's is the centre of the vertices'
 /// bounding box): a mesh cut into consecutive runs of triangles (the pieces of SPEC §10 "MPI")
