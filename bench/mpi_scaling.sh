@@ -20,9 +20,9 @@ fi
 mpirun=(mpirun --oversubscribe --allow-run-as-root -q --bind-to none)
 for flags in "" "--linear-only"; do
   echo "== isouq mesh sphere$radius.vdb $flags -j 1 ($(uptime | sed 's/.*load/load/'))"
-  /usr/bin/time -f "one process: %e s wall, peak %M KB" "$isouq" mesh "$input" -o "$work/one.ply" $flags -q -j 1 >/dev/null
+  /usr/bin/time -f "one process: %e s wall, %U+%S s CPU, peak %M KB" "$isouq" mesh "$input" -o "$work/one.ply" $flags -q -j 1 >/dev/null
   for np in 1 2; do
-    "${mpirun[@]}" -np $np /usr/bin/time -f "-np $np, a rank: %e s wall, peak %M KB" \
+    "${mpirun[@]}" -np $np /usr/bin/time -f "-np $np, a rank: %e s wall, %U+%S s CPU, peak %M KB" \
       "$isouq" mesh "$input" -o "$work/np$np.ply" --summary "$work/np$np.json" $flags -q -j 1 >/dev/null
     cmp -s "$work/one.ply" "$work/np$np.ply" || { echo "np $np: the PLY differs"; exit 1; }
   done
