@@ -34,7 +34,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <future>
 #include <limits>
 #include <numeric>
 #include <sstream>
@@ -274,7 +273,6 @@ std::vector<const std::vector<float>*> summaryColumns(const Mesh& mesh, std::vec
 // Where the one-process graph (MeshGraph.cc) reports a failure of the same work.
 constexpr const char* kRead = "node 'load' (read_volume): ";
 constexpr const char* kMesh = "node 'mesh' (mesh): ";
-constexpr const char* kSummary = "node 'summary' (summary): ";
 
 struct PieceTimes {
     double load = 0, check = 0, mesh = 0, measure = 0, write = 0;
@@ -506,12 +504,6 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
                 shared[v] = other;
             }
         }
-        // The piece's own topology, on a thread of its own while this rank waits for the sums of
-        // the ranks before it (it reads the positions and triangles only).
-        std::vector<std::uint32_t> labels;
-        MeshTopologyStats topo;
-        std::future<MeshTopologyStats> topology = std::async(std::launch::async,
-            [&local, &labels] { return measureTopology(local, &labels, /*geometry=*/false); });
         // Area, volume and statistics, carried from rank to rank in the one-process order.
         std::array<double, 3> lo, hi, centre;
         lo.fill(std::numeric_limits<double>::infinity());
@@ -560,7 +552,11 @@ DistributedResult runDistributedMesh(const MeshGraphRequest& request, MPI_Comm c
         const std::size_t summaryColumnCount = columns.size();
         piece.vertexAttributes.clear();
 
-        ranks.step([&] { topo = topology.get(); }, kSummary);
+        MeshTopologyStats topo;
+        std::vector<std::uint32_t> labels;
+        ranks.step([&] {
+            topo = measureTopology(local, &labels, /*geometry=*/false);
+        });
         // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
         std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
         Words componentPairs; // (global vertex, local component) of the shared vertices used
