@@ -99,7 +99,8 @@ def bad_input(args):
         [truncated],
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
-        [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],
+        [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw")],          # not yet under MPI
     ]
     for extra in cases:
         r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
@@ -108,7 +109,7 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
-        if "--hidden-features" not in extra:  # the one-process run says the same
+        if "--hidden-features" not in extra and not extra[0].endswith(".raw"):  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
