@@ -8,6 +8,7 @@ packages=(
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libopenexr-dev libblosc-dev
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
   libnifti2-dev libteem-dev libtiff-dev libgdcm-dev
+  libopenmpi-dev openmpi-bin
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
   python3-openimageio python3-openvdb hyperfine

@@ -10,6 +10,9 @@
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
 #include <isouq/nodes/Sequence.h>
+#ifdef ISOUQ_HAVE_MPI
+#include <isouq/nodes/Distributed.h>
+#endif
 
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
@@ -60,7 +63,13 @@ file is written: a failed or interrupted run writes nothing.
 
 bool stderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
 
-void printError(const std::string& message) { std::fprintf(stderr, "isouq: error: %s\n", isouq::oneLine(message).c_str()); }
+/// False on the MPI ranks other than 0 while every rank reports the same thing (usage errors).
+bool sPrintsErrors = true;
+
+void printError(const std::string& message)
+{
+    if (sPrintsErrors) std::fprintf(stderr, "isouq: error: %s\n", isouq::oneLine(message).c_str());
+}
 
 void printNotes(const std::vector<std::string>& notes, bool quiet)
 {
@@ -110,6 +119,45 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", saveGraph.c_str(), saveGraph.c_str());
     return 0;
 }
+
+#ifdef ISOUQ_HAVE_MPI
+/// MPI for the life of main, started only under a launcher (mpirun, srun): a plain start-up
+/// never initialises it (SPEC §10 "MPI"; docs/mpi.md).
+struct MpiSession {
+    MpiSession(int& argc, char**& argv)
+    {
+        int provided = 0;
+        MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
+        MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+        MPI_Comm_size(MPI_COMM_WORLD, &size);
+    }
+    ~MpiSession() { MPI_Finalize(); }
+    int rank = 0, size = 1;
+};
+
+/// `isouq mesh` on the ranks of MPI_COMM_WORLD (Distributed.h): the same outputs and lines as
+/// one process, printed by rank 0; an error is printed once, by the lowest failing rank.
+int runMeshOnRanks(const MeshGraphRequest& request, const std::string& saveGraph, bool quiet, int rank)
+{
+    if (!saveGraph.empty()) throw isouq::InputError("--save-graph is not supported under MPI yet (docs/mpi.md)");
+    isouq::cli::ProgressInterrupter progress(rank == 0 && !quiet && stderrIsTerminal());
+    const isouq::nodes::DistributedResult r = isouq::nodes::runDistributedMesh(request, MPI_COMM_WORLD, &progress,
+        [] { return isouq::cli::ProgressInterrupter::interrupted(); });
+    if (r.status == 2) {
+        if (r.printsError) std::fprintf(stderr, "isouq: error: %s\n", isouq::oneLine(r.error).c_str());
+        return kExitBadInput;
+    }
+    if (r.status != 0) {
+        if (r.isRoot) std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
+        return isouq::cli::ProgressInterrupter::interrupted() ? isouq::cli::ProgressInterrupter::exitStatus() : 130;
+    }
+    if (r.isRoot) {
+        printNotes(r.notes, quiet);
+        printResult(r.summary, request.summaryPath);
+    }
+    return 0;
+}
+#endif
 
 /// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
 int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
@@ -166,6 +214,13 @@ int listNodes(bool json, bool markdown)
 
 int main(int argc, char** argv)
 {
+#ifdef ISOUQ_HAVE_MPI
+    std::unique_ptr<MpiSession> mpi;
+    if (isouq::nodes::launchedByMpiLauncher()) {
+        mpi = std::make_unique<MpiSession>(argc, argv);
+        sPrintsErrors = mpi->rank == 0;
+    }
+#endif
     using isouq::cli::addParmOptions;
     using isouq::cli::nodeType;
 
@@ -259,6 +314,9 @@ int main(int argc, char** argv)
             meshRequest.write = plyParms;
             meshRequest.summaryPath = summaryParms.value("path", std::string());
             if (isouq::nodes::parseFramePattern(meshRequest.read.value("input", std::string()))) {
+#ifdef ISOUQ_HAVE_MPI
+                if (mpi) throw isouq::InputError("frame sequences are not supported under MPI yet (docs/mpi.md)");
+#endif
                 if (!saveGraph.empty()) throw isouq::InputError("--save-graph is for one input, not a sequence");
                 sequence.frame = meshRequest;
                 return runSequenceCommand(sequence, quiet);
@@ -266,8 +324,14 @@ int main(int argc, char** argv)
             for (const CLI::Option* o : {frames, resume, skipMissing, frameJobs})
                 if (o->count() > 0)
                     throw isouq::InputError(o->get_name() + " is for sequences: INPUT needs #### or %04d in its name");
+#ifdef ISOUQ_HAVE_MPI
+            if (mpi) return runMeshOnRanks(meshRequest, saveGraph, quiet, mpi->rank);
+#endif
             return runMesh(meshRequest, saveGraph, quiet);
         }
+#ifdef ISOUQ_HAVE_MPI
+        if (mpi && mpi->size > 1) throw isouq::InputError("only 'isouq mesh' runs on several MPI ranks");
+#endif
         if (*demo) {
             std::filesystem::create_directories(demoDir);
             MeshGraphRequest demoRequest;

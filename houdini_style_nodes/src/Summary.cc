@@ -10,21 +10,34 @@
 
 namespace isouq::nodes {
 
+void StatisticsSums::add(const float* values, std::size_t n)
+{
+    double lo_ = lo, hi_ = hi, sum_ = sum, sumSq_ = sumSq;
+    std::size_t count_ = count;
+    for (std::size_t i = 0; i < n; ++i) {
+        const float v = values[i];
+        if (!std::isfinite(v)) continue;
+        lo_ = std::min(lo_, double(v));
+        hi_ = std::max(hi_, double(v));
+        sum_ += v;
+        sumSq_ += double(v) * v;
+        ++count_;
+    }
+    lo = lo_, hi = hi_, sum = sum_, sumSq = sumSq_, count = count_;
+}
+
+nlohmann::json StatisticsSums::result() const
+{
+    if (count == 0) return {{"min", nullptr}, {"max", nullptr}, {"mean", nullptr}, {"rms", nullptr}, {"count", 0}};
+    return {{"min", lo}, {"max", hi}, {"mean", sum / double(count)}, {"rms", std::sqrt(sumSq / double(count))},
+        {"count", count}};
+}
+
 nlohmann::json statistics(const std::vector<float>& values)
 {
-    double lo = std::numeric_limits<double>::infinity(), hi = -lo, sum = 0, sumSq = 0;
-    std::size_t n = 0;
-    for (float v : values) {
-        if (!std::isfinite(v)) continue;
-        lo = std::min(lo, double(v));
-        hi = std::max(hi, double(v));
-        sum += v;
-        sumSq += double(v) * v;
-        ++n;
-    }
-    if (n == 0) return {{"min", nullptr}, {"max", nullptr}, {"mean", nullptr}, {"rms", nullptr}, {"count", 0}};
-    return {{"min", lo}, {"max", hi}, {"mean", sum / double(n)}, {"rms", std::sqrt(sumSq / double(n))},
-        {"count", n}};
+    StatisticsSums sums;
+    sums.add(values.data(), values.size());
+    return sums.result();
 }
 
 nlohmann::json summarizeMesh(const Mesh& mesh)

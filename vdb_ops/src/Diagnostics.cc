@@ -13,56 +13,6 @@
 namespace isouq {
 namespace diagnostics_internal {
 
-/// Non-finite count, first non-finite location (leaf order, then tiles) and finite range of
-/// the active values.
-struct ValueScan {
-    openvdb::Index64 nonFinite = 0;
-    std::size_t firstLeaf = std::numeric_limits<std::size_t>::max();
-    openvdb::Coord first;
-    float firstValue = 0.0f;
-    float min = std::numeric_limits<float>::infinity(), max = -min;
-
-    void add(float v, std::size_t leafIndex, const openvdb::Coord& ijk, openvdb::Index64 count)
-    {
-        if (std::isfinite(v)) {
-            min = std::min(min, v), max = std::max(max, v);
-            return;
-        }
-        nonFinite += count;
-        if (leafIndex < firstLeaf) firstLeaf = leafIndex, first = ijk, firstValue = v;
-    }
-    void join(const ValueScan& other)
-    {
-        nonFinite += other.nonFinite;
-        min = std::min(min, other.min), max = std::max(max, other.max);
-        if (other.firstLeaf < firstLeaf) firstLeaf = other.firstLeaf, first = other.first,
-                                         firstValue = other.firstValue;
-    }
-};
-
-ValueScan scanActiveValues(const openvdb::FloatGrid& grid)
-{
-    using LeafRange = openvdb::tree::LeafManager<const openvdb::FloatTree>::LeafRange;
-    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(grid.tree());
-    ValueScan scan = tbb::parallel_reduce(leaves.leafRange(), ValueScan(),
-        [](const LeafRange& range, ValueScan partial) {
-            for (auto leaf = range.begin(); leaf; ++leaf) {
-                for (auto it = leaf->cbeginValueOn(); it; ++it) {
-                    partial.add(*it, leaf.pos(), it.getCoord(), 1);
-                }
-            }
-            return partial;
-        },
-        [](ValueScan a, const ValueScan& b) { a.join(b); return a; });
-    // Active tiles come after every leaf in "first" order.
-    auto tile = grid.tree().cbeginValueOn();
-    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
-    for (; tile; ++tile) {
-        scan.add(*tile, leaves.leafCount(), tile.getCoord(), tile.getVoxelCount());
-    }
-    return scan;
-}
-
 template <typename T>
 std::string str(const T& v)
 {
@@ -73,7 +23,53 @@ std::string str(const T& v)
 
 } // namespace diagnostics_internal
 
+void ActiveValueScan::add(float v, std::uint64_t leafIndex, const openvdb::Coord& ijk, std::uint64_t count)
+{
+    if (std::isfinite(v)) {
+        min = std::min(min, v), max = std::max(max, v);
+        return;
+    }
+    nonFinite += count;
+    if (leafIndex < firstLeaf) firstLeaf = leafIndex, first = ijk, firstValue = v;
+}
+
+void ActiveValueScan::join(const ActiveValueScan& other)
+{
+    nonFinite += other.nonFinite;
+    min = std::min(min, other.min), max = std::max(max, other.max);
+    if (other.firstLeaf < firstLeaf) firstLeaf = other.firstLeaf, first = other.first, firstValue = other.firstValue;
+}
+
+ActiveValueScan scanActiveValues(const openvdb::FloatGrid& grid,
+    const std::function<bool(const openvdb::Coord&)>& leaves, bool tiles)
+{
+    using LeafRange = openvdb::tree::LeafManager<const openvdb::FloatTree>::LeafRange;
+    openvdb::tree::LeafManager<const openvdb::FloatTree> manager(grid.tree());
+    ActiveValueScan scan = tbb::parallel_reduce(manager.leafRange(), ActiveValueScan(),
+        [&](const LeafRange& range, ActiveValueScan partial) {
+            for (auto leaf = range.begin(); leaf; ++leaf) {
+                if (leaves && !leaves(leaf->origin())) continue;
+                for (auto it = leaf->cbeginValueOn(); it; ++it) partial.add(*it, leaf.pos(), it.getCoord(), 1);
+            }
+            return partial;
+        },
+        [](ActiveValueScan a, const ActiveValueScan& b) { a.join(b); return a; });
+    if (!tiles) return scan;
+    // Active tiles come after every leaf in "first" order.
+    auto tile = grid.tree().cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile) scan.add(*tile, manager.leafCount(), tile.getCoord(), tile.getVoxelCount());
+    return scan;
+}
+
 std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue)
+{
+    if (grid.tree().activeVoxelCount() == 0) return checkScalarVolume(grid, isovalue, ActiveValueScan());
+    return checkScalarVolume(grid, isovalue, scanActiveValues(grid));
+}
+
+std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue,
+    const ActiveValueScan& scan)
 {
     namespace di = diagnostics_internal;
     const std::string name = grid.getName().empty() ? "the grid" : "grid '" + grid.getName() + "'";
@@ -103,7 +99,6 @@ std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<floa
         return name + " has a non-finite background value " + di::str(background)
             + " (inactive voxels read it); set a finite background";
     }
-    const di::ValueScan scan = di::scanActiveValues(grid);
     if (scan.nonFinite > 0) {
         return name + " has " + std::to_string(scan.nonFinite) + " active non-finite value(s); the first, "
             + di::str(scan.firstValue) + ", at voxel " + di::str(scan.first);

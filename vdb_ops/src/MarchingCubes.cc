@@ -9,197 +9,19 @@
 //   fill:  after a serial prefix sum, write each block's vertices and triangles at its offsets.
 // A vertex's global index is its block's offset plus the rank of its bit in the block's mask, so
 // the output never depends on the thread count and needs no hash map.
-#include "isouq/MarchingCubes.h"
-#include "isouq/GridMetadata.h"
-#include "isouq/McTables.h"
+#include "MeshPasses.h"
 
-#include "BlockScratch.h"
-#include "MeshVertices.h"
-
-#include <openvdb/thread/Threading.h>
-
-#include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
-#include <tbb/parallel_for.h>
 
-#include <sys/resource.h>
-#include <unistd.h>
-
-#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <cstring>
-#include <fstream>
 #include <limits>
-#include <sstream>
-#include <string>
 
 namespace isouq {
 namespace mc_internal {
 
-using openvdb::Coord;
-using openvdb::CoordBBox;
-
-constexpr int kWords = 3 * 512 / 64; // one bit per (voxel, axis) owned by a block
 constexpr openvdb::Index64 kSerialLeaves = 32; // fewer leaves: one thread (bench/README.md)
-
-/// Which edges of a block carry a vertex: bit 3 * voxelOffset + axis. Kept from the count pass
-/// to the fill pass for non-empty blocks only (most blocks of a narrow band are empty).
-struct EdgeMask {
-    std::array<std::uint64_t, kWords> bits{};
-    std::array<std::uint16_t, kWords> rankBase{}; // set bits in the words before
-
-    std::uint32_t rank(int bit) const
-    {
-        const int word = bit >> 6;
-        const std::uint64_t below = (std::uint64_t(1) << (bit & 63)) - 1;
-        return rankBase[word] + std::uint32_t(__builtin_popcountll(bits[word] & below));
-    }
-};
-
-struct BlockCounts {
-    std::uint32_t vertices = 0, triangles = 0;
-    bool empty() const { return vertices == 0 && triangles == 0; }
-};
-
-/// The edge masks of the non-empty blocks, found by block index.
-struct EdgeMasks {
-    std::vector<EdgeMask> masks;
-    std::vector<std::int32_t> slot; // per block: index into masks, or -1
-
-    const EdgeMask& of(std::int32_t block) const { return masks[std::size_t(slot[std::size_t(block)])]; }
-};
-
-
-/// Calls @a body(x, y, z, cubeCase) for each candidate cell with x, y, z >= @a from (-1 or 0).
-template <typename ScratchT, typename Body>
-void forEachCandidateCell(const ScratchT& s, int from, Body&& body)
-{
-    for (int x = from; x < kBlockDim; ++x)
-        for (int y = from; y < kBlockDim; ++y) {
-            std::uint32_t cells = s.cellRow(x, y);
-            if (from == 0) cells &= ~1u;
-            for (; cells; cells &= cells - 1) {
-                const int z = __builtin_ctz(cells) - 1;
-                body(x, y, z, s.cubeCase(x, y, z));
-            }
-        }
-}
-
-/// Count pass for one block: which owned edges carry a vertex, and the block's triangle count.
-/// An edge carries a vertex when it crosses and at least one of its four cells is meshed.
-template <typename TreeT>
-void countBlock(const BlockScratch<TreeT>& s, EdgeMask& mask, BlockCounts& counts)
-{
-    mask = EdgeMask{};
-    counts = BlockCounts{};
-    forEachCandidateCell(s, -1, [&](int x, int y, int z, int cubeCase) {
-        if (x >= 0 && y >= 0 && z >= 0) counts.triangles += kMcCases.triangleCount[cubeCase];
-        const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
-        for (int e = 0; e < 12; ++e) {
-            if (!((crossing >> e) & 1)) continue;
-            const McEdge& edge = kMcEdges[e];
-            const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
-            if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
-                continue; // owned by another block
-            const int bit = 3 * voxelOffset(vx, vy, vz) + edge.axis;
-            mask.bits[bit >> 6] |= std::uint64_t(1) << (bit & 63);
-        }
-    });
-    std::uint32_t total = 0;
-    for (int w = 0; w < kWords; ++w) {
-        mask.rankBase[w] = std::uint16_t(total);
-        total += std::uint32_t(__builtin_popcountll(mask.bits[w]));
-    }
-    counts.vertices = total;
-}
-
-/// Writes the block's vertices at @a offset, in the order of the bits of its edge mask.
-template <typename TreeT>
-void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const EdgeMask& mask,
-    std::size_t offset, const VertexContext& context, const VertexColumns& out)
-{
-    std::size_t n = offset;
-    for (int w = 0; w < kWords; ++w) {
-        for (std::uint64_t bits = mask.bits[w]; bits; bits &= bits - 1) {
-            const int bit = 64 * w + __builtin_ctzll(bits);
-            const int voxel = bit / 3;
-            writeVertex(s, origin, voxel >> 6, (voxel >> 3) & 7, voxel & 7, bit % 3, n++, context, out);
-        }
-    }
-}
-
-/// Global vertex index of cube edge @a e of the cell at (x, y, z) in the block, using the block
-/// and its + neighbours (neighbours[dx][dy][dz], dx, dy, dz in {0, 1}).
-inline std::uint32_t vertexOf(int x, int y, int z, int e, const std::int32_t (&neighbours)[2][2][2],
-    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets)
-{
-    const McEdge& edge = kMcEdges[e];
-    const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
-    const int bx = vx >> 3, by = vy >> 3, bz = vz >> 3;
-    const std::int32_t owner = neighbours[bx][by][bz];
-    const int bit = 3 * voxelOffset(vx & 7, vy & 7, vz & 7) + edge.axis;
-    return std::uint32_t(vertexOffsets[owner] + masks.of(owner).rank(bit));
-}
-
-template <typename TreeT>
-void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours)[2][2][2],
-    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets, bool flip, openvdb::Vec3I* out)
-{
-    forEachCandidateCell(s, 0, [&](int x, int y, int z, int cubeCase) {
-        const auto& edges = kMcCases.triangleEdges[cubeCase];
-        for (int t = 0; t < kMcCases.triangleCount[cubeCase]; ++t) {
-            const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, masks, vertexOffsets);
-            const std::uint32_t b = vertexOf(x, y, z, edges[3 * t + 1], neighbours, masks, vertexOffsets);
-            const std::uint32_t c = vertexOf(x, y, z, edges[3 * t + 2], neighbours, masks, vertexOffsets);
-            *out++ = flip ? openvdb::Vec3I(a, c, b) : openvdb::Vec3I(a, b, c);
-        }
-    });
-}
-
-template <typename GridT>
-std::optional<CoordBBox> dataBoundsOf(const GridT& grid, const MeshSettings& settings)
-{
-    if (settings.dataBounds) return settings.dataBounds;
-    return dataBounds(grid);
-}
-
-/// The box of minimum corners of the cells that may be meshed: all corners inside the data
-/// bounds (min corner in [min, max - 1]), and min corner inside the brick (SPEC §9).
-inline std::optional<CoordBBox> meshedCellBox(const std::optional<CoordBBox>& dataBounds,
-    const std::optional<CoordBBox>& brick)
-{
-    std::optional<CoordBBox> box;
-    if (dataBounds) box = CoordBBox(dataBounds->min(), dataBounds->max().offsetBy(-1));
-    if (brick) {
-        if (box) box->intersect(*brick);
-        else box = brick;
-    }
-    return box;
-}
-
-/// Runs @a body(i) for every block in parallel (or serially), polling the interrupter.
-template <typename Body>
-void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupter* interrupter,
-    std::atomic<std::size_t>& done, std::size_t total, Body&& body)
-{
-    std::atomic<bool> stop{false};
-    auto range = [&](const tbb::blocked_range<std::size_t>& r) {
-        if (stop.load(std::memory_order_relaxed)) return;
-        const std::size_t before = done.fetch_add(r.size(), std::memory_order_relaxed);
-        if (openvdb::util::wasInterrupted(interrupter, int(100 * before / std::max<std::size_t>(total, 1)))) {
-            stop = true;
-            openvdb::thread::cancelGroupExecution();
-            return;
-        }
-        for (std::size_t i = r.begin(); i < r.end(); ++i) body(i);
-    };
-    const tbb::blocked_range<std::size_t> all(0, count, 16);
-    if (threaded) tbb::parallel_for(all, range);
-    else range(all);
-    if (stop) throw InterruptedError();
-}
 
 /// Stage wall times of IsosurfaceMesher::StageTimes: lap(t) sets t to the time since the last lap.
 class StageClock {
@@ -215,54 +37,6 @@ public:
 private:
     std::chrono::steady_clock::time_point mLast = std::chrono::steady_clock::now();
 };
-
-/// Bytes this process can still allocate: the kernel's MemAvailable, and under an address-space
-/// limit (ulimit -v) what is left of it; 0 if unknown.
-inline std::uint64_t availableMemory()
-{
-    std::uint64_t available = 0;
-    std::ifstream meminfo("/proc/meminfo");
-    for (std::string key; meminfo >> key;) {
-        std::uint64_t kib = 0;
-        meminfo >> kib;
-        if (key == "MemAvailable:") {
-            available = kib * 1024;
-            break;
-        }
-        meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
-    }
-    rlimit limit{};
-    std::uint64_t pages = 0;
-    if (::getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY && (std::ifstream("/proc/self/statm") >> pages)) {
-        const std::uint64_t used = pages * std::uint64_t(::sysconf(_SC_PAGESIZE));
-        const std::uint64_t left = limit.rlim_cur > used ? limit.rlim_cur - used : 1;
-        available = available ? std::min(available, left) : left;
-    }
-    return available;
-}
-
-/// Refuses, before allocating it, a mesh that needs more memory than there is (SPEC §10
-/// "Errors"): a small file can describe a huge surface (one active 4096^3 tile).
-inline void checkMeshFits(std::uint64_t vertices, std::uint64_t triangles, const MeshSettings& settings, bool provenance)
-{
-    // positions; edge_i/j/k, edge_axis, t_linear; err_est, err_bound; 11 high-order columns.
-    std::uint64_t perVertex = 12 + (provenance ? 17 : 0);
-    if (settings.uncertainty) perVertex += 8 + (settings.highOrder ? 45 : 0);
-    const std::uint64_t bytes = vertices * perVertex + triangles * 12;
-    // Small meshes skip reading /proc/meminfo, a cost comparable to meshing a 32^3 grid.
-    if (bytes < (std::uint64_t(16) << 20)) return;
-    const std::uint64_t available = availableMemory();
-    if (available == 0 || bytes <= available) return;
-    const auto gib = [](std::uint64_t b) {
-        std::ostringstream os;
-        os.precision(3);
-        os << double(b) / double(1ull << 30);
-        return os.str();
-    };
-    throw InputError("the mesh would have " + std::to_string(vertices) + " vertices and " +
-        std::to_string(triangles) + " triangles, " + gib(bytes) + " GiB, more than the " + gib(available) +
-        " GiB of memory available");
-}
 
 } // namespace mc_internal
 

@@ -182,17 +182,18 @@ std::vector<std::string> headerComments(const AtomicFile& file, const Mesh& mesh
     return comments;
 }
 
-std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
+std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions& options,
+    std::size_t vertices, std::size_t faces)
 {
     std::string h = "ply\nformat ";
     h += options.encoding == PlyEncoding::Ascii ? "ascii" : "binary_little_endian";
     h += " 1.0\n";
     for (const std::string& c : headerComments(file, mesh, options)) h += "comment " + c + "\n";
-    h += "element vertex " + std::to_string(mesh.vertexCount()) + "\n";
+    h += "element vertex " + std::to_string(vertices) + "\n";
     h += "property float x\nproperty float y\nproperty float z\n";
     for (const Attribute& a : mesh.vertexAttributes.columns())
         h += std::string("property ") + sPlyTypeNames[a.data.index()] + " " + a.name + "\n";
-    h += "element face " + std::to_string(mesh.triangleCount()) + "\n";
+    h += "element face " + std::to_string(faces) + "\n";
     h += "property list uchar int vertex_indices\n";
     for (const Attribute& a : mesh.faceAttributes.columns())
         h += std::string("property ") + sPlyTypeNames[a.data.index()] + " " + a.name + "\n";
@@ -216,44 +217,53 @@ void interleaveColumns(const AttributeTable& table, std::size_t begin, std::size
     }
 }
 
-void checkTriangle(const AtomicFile& file, const Mesh& mesh, std::size_t f)
+/// Fails unless the vertex indices of triangle @a f are below @a nv.
+template <typename Fail>
+void checkTriangle(const Mesh& mesh, std::size_t f, std::size_t nv, const Fail& fail)
 {
     const openvdb::Vec3I& t = mesh.triangles[f];
-    const std::size_t nv = mesh.vertexCount();
-    if (t[0] >= nv || t[1] >= nv || t[2] >= nv)
-        file.fail("triangle " + std::to_string(f) + " has a vertex index out of range");
+    if (t[0] >= nv || t[1] >= nv || t[2] >= nv) fail("triangle " + std::to_string(f) + " has a vertex index out of range");
 }
 
-void writeBinaryBody(AtomicFile& file, const Mesh& mesh)
+/// The binary rows of @a mesh in chunks: sink(false, ...) for the vertex rows, then
+/// sink(true, ...) for the face rows; vertex indices must be below @a nv.
+template <typename Sink, typename Fail>
+void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& fail)
 {
-    const std::size_t nv = mesh.vertexCount(), nf = mesh.triangleCount();
+    const std::size_t nf = mesh.triangleCount(), rowsV = mesh.vertexCount();
     const std::size_t vStride = rowBytes(mesh.vertexAttributes, 12);
     const std::size_t fStride = rowBytes(mesh.faceAttributes, 13);
     const std::size_t vChunk = std::max<std::size_t>(1, kChunkBytes / vStride);
     const std::size_t fChunk = std::max<std::size_t>(1, kChunkBytes / fStride);
-    std::vector<char> chunk(std::max(std::min(vChunk, nv) * vStride, std::min(fChunk, nf) * fStride));
+    std::vector<char> chunk(std::max(std::min(vChunk, rowsV) * vStride, std::min(fChunk, nf) * fStride));
 
-    for (std::size_t begin = 0; begin < nv; begin += vChunk) {
-        const std::size_t rows = std::min(vChunk, nv - begin);
+    for (std::size_t begin = 0; begin < rowsV; begin += vChunk) {
+        const std::size_t rows = std::min(vChunk, rowsV - begin);
         char* row = chunk.data();
         for (std::size_t r = 0; r < rows; ++r, row += vStride)
             std::memcpy(row, mesh.positions[begin + r].asPointer(), 12);
         interleaveColumns(mesh.vertexAttributes, begin, rows, chunk.data(), 12, vStride);
-        file.write(chunk.data(), rows * vStride);
+        sink(false, chunk.data(), rows * vStride);
     }
     for (std::size_t begin = 0; begin < nf; begin += fChunk) {
         const std::size_t rows = std::min(fChunk, nf - begin);
         char* row = chunk.data();
         for (std::size_t r = 0; r < rows; ++r, row += fStride) {
-            checkTriangle(file, mesh, begin + r);
+            checkTriangle(mesh, begin + r, nv, fail);
             const openvdb::Vec3I& t = mesh.triangles[begin + r];
             const std::int32_t idx[3] = {std::int32_t(t[0]), std::int32_t(t[1]), std::int32_t(t[2])};
             row[0] = 3;
             std::memcpy(row + 1, idx, 12);
         }
         interleaveColumns(mesh.faceAttributes, begin, rows, chunk.data(), 13, fStride);
-        file.write(chunk.data(), rows * fStride);
+        sink(true, chunk.data(), rows * fStride);
     }
+}
+
+void writeBinaryBody(AtomicFile& file, const Mesh& mesh)
+{
+    binaryRows(mesh, mesh.vertexCount(), [&](bool, const char* data, std::size_t size) { file.write(data, size); },
+        [&](const std::string& reason) { file.fail(reason); });
 }
 
 /// Appends " value" of row @a r of every column.
@@ -283,7 +293,7 @@ void writeAsciiBody(AtomicFile& file, const Mesh& mesh)
         flush(false);
     }
     for (std::size_t f = 0; f < mesh.triangleCount(); ++f) {
-        checkTriangle(file, mesh, f);
+        checkTriangle(mesh, f, mesh.vertexCount(), [&](const std::string& reason) { file.fail(reason); });
         const openvdb::Vec3I& t = mesh.triangles[f];
         out += "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' + std::to_string(t[2]);
         appendAsciiRow(out, mesh.faceAttributes, f);
@@ -697,7 +707,7 @@ void writePlyTo(AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
     if (mesh.vertexCount() > std::size_t(INT32_MAX)) file.fail("more vertices than PLY int indices hold");
     checkColumns(file, mesh.vertexAttributes, mesh.vertexCount(), "vertex", {"x", "y", "z"});
     checkColumns(file, mesh.faceAttributes, mesh.triangleCount(), "face", {"vertex_indices"});
-    file.write(plyHeader(file, mesh, options));
+    file.write(plyHeader(file, mesh, options, mesh.vertexCount(), mesh.triangleCount()));
     if (options.encoding == PlyEncoding::Ascii) writeAsciiBody(file, mesh);
     else writeBinaryBody(file, mesh);
 }
@@ -749,6 +759,40 @@ void OutputBatch::commit()
 {
     for (auto& file : mImpl->files) file->commit();
     mImpl->files.clear();
+}
+
+SharedPlyFile::SharedPlyFile(const std::string& path)
+    : mFile(std::make_unique<meshio_internal::AtomicFile>(path))
+{
+}
+
+SharedPlyFile::~SharedPlyFile() = default;
+
+const std::string& SharedPlyFile::temporaryPath() const { return mFile->temporaryPath(); }
+
+std::string SharedPlyFile::header(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces,
+    const PlyOptions& options) const
+{
+    using namespace meshio_internal;
+    if (vertices > std::uint64_t(INT32_MAX)) mFile->fail("more vertices than PLY int indices hold");
+    if (options.encoding != PlyEncoding::BinaryLittleEndian) mFile->fail("a PLY written in pieces is binary");
+    checkColumns(*mFile, piece.vertexAttributes, piece.vertexCount(), "vertex", {"x", "y", "z"});
+    checkColumns(*mFile, piece.faceAttributes, piece.triangleCount(), "face", {"vertex_indices"});
+    return plyHeader(*mFile, piece, options, std::size_t(vertices), std::size_t(faces));
+}
+
+void SharedPlyFile::commit() { mFile->commit(); }
+
+std::pair<std::size_t, std::size_t> plyRowBytes(const Mesh& mesh)
+{
+    return {meshio_internal::rowBytes(mesh.vertexAttributes, 12), meshio_internal::rowBytes(mesh.faceAttributes, 13)};
+}
+
+void plyPieceRows(const Mesh& piece, std::uint64_t vertices,
+    const std::function<void(bool faces, const char* data, std::size_t size)>& sink)
+{
+    meshio_internal::binaryRows(piece, std::size_t(vertices), sink,
+        [](const std::string& reason) { throw IoError("cannot write a PLY piece: " + reason); });
 }
 
 Mesh readPly(const std::string& path, PlyInfo* info)

@@ -27,6 +27,7 @@ public:
     void commit();
     [[noreturn]] void fail(const std::string& reason) const;
     const std::string& path() const { return mPath; }
+    const std::string& temporaryPath() const { return mTemp; }
 
 private:
     std::string mPath, mTemp;

@@ -77,30 +77,19 @@ void countEdges(const Mesh& mesh, MeshTopologyStats& stats)
 void measureGeometry(const Mesh& mesh, MeshTopologyStats& stats)
 {
     if (mesh.positions.empty()) return;
-    std::array<double, 3> lo, hi;
+    std::array<double, 3> lo, hi, centre;
     for (int c = 0; c < 3; ++c) lo[c] = hi[c] = mesh.positions[0][c];
     for (const openvdb::Vec3s& p : mesh.positions)
         for (int c = 0; c < 3; ++c) {
             lo[c] = std::min(lo[c], double(p[c]));
             hi[c] = std::max(hi[c], double(p[c]));
         }
-    double area = 0, volume = 0;
-    for (const openvdb::Vec3I& t : mesh.triangles) {
-        double q[3][3];
-        for (int v = 0; v < 3; ++v)
-            for (int c = 0; c < 3; ++c) q[v][c] = double(mesh.positions[t[v]][c]) - 0.5 * (lo[c] + hi[c]);
-        const double e1[3] = {q[1][0] - q[0][0], q[1][1] - q[0][1], q[1][2] - q[0][2]};
-        const double e2[3] = {q[2][0] - q[0][0], q[2][1] - q[0][1], q[2][2] - q[0][2]};
-        const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0]};
-        const double twiceArea = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-        area += 0.5 * twiceArea;
-        // q0 . (q1 x q2) = q0 . (e1 x e2), so the normal is reused.
-        volume += (q[0][0] * n[0] + q[0][1] * n[1] + q[0][2] * n[2]) / 6.0;
-        if (twiceArea == 0 || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++stats.degenerateTriangles;
-    }
-    stats.area = area;
-    stats.enclosedVolume = std::abs(volume);
+    for (int c = 0; c < 3; ++c) centre[c] = 0.5 * (lo[c] + hi[c]);
+    GeometrySums sums;
+    addTriangleGeometry(mesh.positions, mesh.triangles.data(), mesh.triangles.data() + mesh.triangles.size(), centre, sums);
+    stats.area = sums.area;
+    stats.enclosedVolume = std::abs(sums.signedVolume);
+    stats.degenerateTriangles = sums.degenerate;
 }
 
 /// Union-find over vertices with path halving; the smaller index becomes the root.
@@ -148,14 +137,43 @@ std::vector<std::uint32_t> labelTriangles(const Mesh& mesh, std::size_t& compone
 
 } // namespace topology_internal
 
-MeshTopologyStats measureTopology(const Mesh& mesh)
+void addTriangleGeometry(const std::vector<openvdb::Vec3s>& positions, const openvdb::Vec3I* first,
+    const openvdb::Vec3I* last, const std::array<double, 3>& centre, GeometrySums& sums)
+{
+    double area = sums.area, volume = sums.signedVolume;
+    for (; first != last; ++first) {
+        const openvdb::Vec3I& t = *first;
+        double q[3][3];
+        for (int v = 0; v < 3; ++v)
+            for (int c = 0; c < 3; ++c) q[v][c] = double(positions[t[v]][c]) - centre[c];
+        const double e1[3] = {q[1][0] - q[0][0], q[1][1] - q[0][1], q[1][2] - q[0][2]};
+        const double e2[3] = {q[2][0] - q[0][0], q[2][1] - q[0][1], q[2][2] - q[0][2]};
+        const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0]};
+        const double twiceArea = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        area += 0.5 * twiceArea;
+        // q0 . (q1 x q2) = q0 . (e1 x e2), so the normal is reused.
+        volume += (q[0][0] * n[0] + q[0][1] * n[1] + q[0][2] * n[2]) / 6.0;
+        if (twiceArea == 0 || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++sums.degenerate;
+    }
+    sums.area = area;
+    sums.signedVolume = volume;
+}
+
+MeshTopologyStats measureTopology(const Mesh& mesh) { return measureTopology(mesh, nullptr, true); }
+
+MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry)
 {
     using namespace topology_internal;
     checkIndices(mesh);
     MeshTopologyStats stats;
     // Three independent passes writing disjoint fields of stats.
     tbb::parallel_invoke([&] { countEdges(mesh, stats); },
-        [&] { labelTriangles(mesh, stats.components); }, [&] { measureGeometry(mesh, stats); });
+        [&] {
+            std::vector<std::uint32_t> l = labelTriangles(mesh, stats.components);
+            if (labels) *labels = std::move(l);
+        },
+        [&] { if (geometry) measureGeometry(mesh, stats); });
     return stats;
 }
 

@@ -2,6 +2,7 @@
 // conversion"; SPEC §8).
 #include "SourcesInternal.h"
 
+#include "isouq/Diagnostics.h"
 #include "isouq/GridMetadata.h"
 #include "isouq/Progress.h"
 
@@ -72,22 +73,8 @@ double otsuOfSource(SliceSource& source)
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).
 double otsuOfGrid(const openvdb::FloatGrid& grid)
 {
-    Range range;
-    for (auto it = grid.cbeginValueOn(); it; ++it) {
-        if (std::isfinite(*it)) range.add(*it);
-    }
-    std::array<std::uint64_t, 256> histogram{};
-    for (auto it = grid.cbeginValueOn(); it; ++it) {
-        if (std::isfinite(*it)) histogram[histogramBin(*it, range.min, range.max)] += it.getVoxelCount();
-    }
-    if (!(range.min < range.max)) {
-        // One active value: the surface is where it meets the background, halfway between them.
-        const float background = grid.background();
-        if (std::isfinite(background) && background != range.min) return 0.5 * (range.min + double(background));
-        throw InputError("constant grid '" + grid.getName() + "' (every value is " + fmt(range.min) +
-                         "): no surface and no default isovalue; nothing to mesh");
-    }
-    return otsuThreshold(histogram, range.min, range.max);
+    const ActiveValueScan scan = scanActiveValues(grid);
+    return otsuOfActiveValues(grid, scan.min, scan.max, activeValueHistogram(grid, scan.min, scan.max));
 }
 
 
@@ -668,6 +655,37 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
 }
 
 } // namespace sources_internal
+
+std::array<std::uint64_t, 256> activeValueHistogram(const openvdb::FloatGrid& grid, double lo, double hi,
+    const std::function<bool(const openvdb::Coord&)>& leaves, bool tiles)
+{
+    std::array<std::uint64_t, 256> histogram{};
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+        if (leaves && !leaves(leaf->origin())) continue;
+        for (auto it = leaf->cbeginValueOn(); it; ++it)
+            if (std::isfinite(*it)) ++histogram[sources_internal::histogramBin(*it, lo, hi)];
+    }
+    if (!tiles) return histogram;
+    auto tile = grid.tree().cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile)
+        if (std::isfinite(*tile)) histogram[sources_internal::histogramBin(*tile, lo, hi)] += tile.getVoxelCount();
+    return histogram;
+}
+
+double otsuOfActiveValues(const openvdb::FloatGrid& grid, double lo, double hi,
+    const std::array<std::uint64_t, 256>& histogram)
+{
+    if (!(lo < hi)) {
+        // One active value: the surface is where it meets the background, halfway between them.
+        const float background = grid.background();
+        if (std::isfinite(background) && background != lo) return 0.5 * (lo + double(background));
+        throw InputError("constant grid '" + grid.getName() + "' (every value is " + sources_internal::fmt(lo) +
+                         "): no surface and no default isovalue; nothing to mesh");
+    }
+    return otsuThreshold(histogram, lo, hi);
+}
+
 
 double otsuThreshold(const std::array<std::uint64_t, 256>& histogram, double lo, double hi)
 {

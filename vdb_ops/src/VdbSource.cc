@@ -8,6 +8,7 @@
 #include <cctype>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 namespace isouq {
 namespace sources_internal {
@@ -151,7 +152,7 @@ LoadedVolume loadVdb(const VolumeRequest& request)
     LoadedVolume volume;
     try {
         openvdb::io::File file(path);
-        file.open(/*delayLoad=*/false);
+        file.open(request.delayLoad);
         const openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
         std::string chosen;
         bool found = false; // a grid may be unnamed ("")
@@ -214,7 +215,7 @@ LoadedVolume sparseVolume(openvdb::FloatGrid::Ptr grid, const VolumeRequest& req
         volume.isovalue = 0.0f;
         volume.isovalueSource = "level set";
     } else {
-        volume.isovalue = float(otsuOfGrid(*volume.grid));
+        volume.isovalue = request.delayLoad ? std::numeric_limits<float>::quiet_NaN() : float(otsuOfGrid(*volume.grid));
         volume.isovalueSource = "Otsu (starting value)";
     }
     volume.description = what + ": grid '" + volume.grid->getName()

@@ -6,9 +6,12 @@
 #include "isouq/Errors.h"
 #include "isouq/MeshAttributes.h"
 
+#include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace isouq {
@@ -94,6 +97,42 @@ private:
     struct Impl;
     std::unique_ptr<Impl> mImpl;
 };
+
+namespace meshio_internal {
+class AtomicFile;
+}
+
+/// A binary PLY file that several processes write together (SPEC §10 "MPI"; docs/mpi.md): one
+/// process creates it under a temporary name next to @a path (removed when this object dies
+/// uncommitted, and by removeTemporaryFiles()) and writes header() at offset 0; every process
+/// writes its piece's plyPieceRows at offsets from a prefix sum (MPI-IO); commit() renames it.
+class SharedPlyFile {
+public:
+    /// @throw IoError as writePly.
+    explicit SharedPlyFile(const std::string& path);
+    ~SharedPlyFile();
+    SharedPlyFile(const SharedPlyFile&) = delete;
+    SharedPlyFile& operator=(const SharedPlyFile&) = delete;
+
+    const std::string& temporaryPath() const;
+    /// The header of a mesh of @a vertices and @a faces with the columns of @a piece: the bytes
+    /// writePly writes before the rows. @throw IoError as writePly.
+    std::string header(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, const PlyOptions& options) const;
+    /// @throw IoError if the file cannot be renamed.
+    void commit();
+
+private:
+    std::unique_ptr<meshio_internal::AtomicFile> mFile;
+};
+
+/// Bytes of one vertex row and of one face row in @a mesh's binary PLY.
+std::pair<std::size_t, std::size_t> plyRowBytes(const Mesh& mesh);
+
+/// The binary rows of @a piece exactly as writePly writes them, in chunks of a few MiB:
+/// sink(false, ...) for the vertex rows in order, then sink(true, ...) for the face rows.
+/// @throw IoError if a vertex index is not below @a vertices (the whole mesh's count).
+void plyPieceRows(const Mesh& piece, std::uint64_t vertices,
+    const std::function<void(bool faces, const char* data, std::size_t size)>& sink);
 
 /// Removes every temporary file this process is writing (async-signal-safe: for a handler of
 /// a second Ctrl-C, SIGTERM or SIGHUP that must end the process at once).

@@ -4,6 +4,7 @@
 
 #include "isouq/MeshAttributes.h"
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -26,6 +27,21 @@ struct MeshTopologyStats {
 /// does not depend on that centre, for an open one it is only a number.
 /// @throw std::invalid_argument if a triangle names a vertex that does not exist.
 MeshTopologyStats measureTopology(const Mesh& mesh);
+
+/// measureTopology that also gives componentLabels() from the same pass, and skips the area,
+/// volume and degenerate triangles unless @a geometry.
+MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry);
+
+/// Area, signed volume and degenerate triangles, summed triangle by triangle in the order
+/// measureTopology sums them, about @a centre (measureTopology's is the centre of the vertices'
+/// bounding box): a mesh cut into consecutive runs of triangles (the pieces of SPEC §10 "MPI")
+/// that hands the sums from one run to the next gets the same bits as the whole.
+struct GeometrySums {
+    double area = 0, signedVolume = 0;
+    std::size_t degenerate = 0;
+};
+void addTriangleGeometry(const std::vector<openvdb::Vec3s>& positions, const openvdb::Vec3I* first,
+    const openvdb::Vec3I* last, const std::array<double, 3>& centre, GeometrySums& sums);
 
 /// Per triangle, its component in 0..C-1, numbered in the order of their first triangle.
 /// Components are vertex connectivity: two triangles are connected when they share a vertex

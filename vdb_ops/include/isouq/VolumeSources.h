@@ -54,6 +54,10 @@ struct VolumeRequest {
     std::optional<std::pair<double, double>> domain; ///< --domain LO,HI (formula, default -1,1)
     std::optional<float> isovalue;            ///< --isovalue
     KeepBlocks keep = KeepBlocks::Crossing;   ///< dense sources only
+    /// .vdb: leave the leaf buffers in the file until they are touched (OpenVDB's delayed
+    /// loading), and a fog volume's default isovalue to the caller (isovalue NaN): an MPI rank
+    /// reads only its pieces and their halo (SPEC §10 "MPI"; docs/mpi.md).
+    bool delayLoad = false;
     /// .vdb: a named grid that is absent gives an empty grid instead of an error (a frame of a
     /// simulation cache where the grid is empty; SPEC §10 "Sequences").
     bool allowEmpty = false;
@@ -119,5 +123,17 @@ std::shared_ptr<const AnalyticField> makeFormulaField(const std::string& express
 /// [lo + b w, lo + (b+1) w), w = (hi - lo) / 256): the centre of the last bin of the lower
 /// class, as scikit-image's threshold_otsu. A starting value, not a documented isovalue.
 double otsuThreshold(const std::array<std::uint64_t, 256>& histogram, double lo, double hi);
+
+/// The 256-bin histogram over [lo, hi] of the finite active values of @a grid's leaves whose
+/// origin @a leaves accepts (all when empty), and of its active tiles (weighing their voxel
+/// count) when @a tiles is true. Histograms of disjoint parts add up to the whole's.
+std::array<std::uint64_t, 256> activeValueHistogram(const openvdb::FloatGrid& grid, double lo, double hi,
+    const std::function<bool(const openvdb::Coord&)>& leaves = {}, bool tiles = true);
+
+/// A sparse grid's default isovalue (SPEC §8) from the finite range [lo, hi] of its active
+/// values and their activeValueHistogram: Otsu's threshold, or halfway to the background when
+/// every active value is the same. @throw InputError for a constant grid.
+double otsuOfActiveValues(const openvdb::FloatGrid& grid, double lo, double hi,
+    const std::array<std::uint64_t, 256>& histogram);
 
 } // namespace isouq

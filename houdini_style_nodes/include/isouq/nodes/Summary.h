@@ -5,9 +5,23 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cstddef>
+#include <limits>
 #include <vector>
 
 namespace isouq::nodes {
+
+/// The running sums behind statistics(), folded value by value in order: a column cut into
+/// consecutive runs (the pieces of SPEC §10 "MPI") that hands them from run to run gets the
+/// same bits as the whole column.
+struct StatisticsSums {
+    double lo = std::numeric_limits<double>::infinity(), hi = -std::numeric_limits<double>::infinity();
+    double sum = 0, sumSq = 0;
+    std::size_t count = 0;
+
+    void add(const float* values, std::size_t n);
+    nlohmann::json result() const;
+};
 
 /// {min, max, mean, rms, count} of the finite values (nulls and count 0 when there are none).
 nlohmann::json statistics(const std::vector<float>& values);

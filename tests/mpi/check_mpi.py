@@ -1,0 +1,191 @@
+#!/usr/bin/env python3
+"""isouq mesh under mpirun against one process (SPEC §10 "MPI"; docs/mpi.md).
+
+  check_mpi.py --cli ISOUQ --mpirun MPIRUN --np N --case CASE --data DIR --work DIR
+
+Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
+tiles (a level set with active tiles, made with pyopenvdb), bad_input, interrupt.
+Exit 0 when the check holds; prints what differs otherwise.
+"""
+import argparse
+import glob
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+TIMINGS = ("timings_ms", "ranks")
+
+
+def run(cmd, **kw):
+    return subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def mpirun(args, np_):
+    return [args.mpirun, "--oversubscribe", "--allow-run-as-root", "-q", "-np", str(np_)]
+
+
+def leaf_voxels(path, grid):
+    import pyopenvdb as vdb
+    g = vdb.read(path, grid)
+    return g.leafCount() * 512
+
+
+def compare(args, name, inputs, extra, grid=None):
+    work = os.path.join(args.work, f"{name}_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    one_ply, one_json = os.path.join(work, "one.ply"), os.path.join(work, "one.json")
+    mpi_ply, mpi_json = os.path.join(work, "mpi.ply"), os.path.join(work, "mpi.json")
+    for f in (one_ply, one_json, mpi_ply, mpi_json):
+        if os.path.exists(f):
+            os.remove(f)
+    one = run([args.cli, "mesh", inputs, "-o", one_ply, "--summary", one_json, "-q", "-j", "1"] + extra)
+    if one.returncode != 0:
+        sys.exit(f"one process failed: {one.stderr}")
+    many = run(mpirun(args, args.np) + [args.cli, "mesh", inputs, "-o", mpi_ply, "--summary", mpi_json, "-q", "-j", "1"] + extra)
+    if many.returncode != 0:
+        sys.exit(f"mpirun -np {args.np} failed ({many.returncode}): {many.stderr}")
+    if many.stdout != one.stdout.replace(one_ply, mpi_ply).replace(one_json, mpi_json):
+        sys.exit(f"printed lines differ:\n{one.stdout}\n{many.stdout}")
+    a, b = open(one_ply, "rb").read(), open(mpi_ply, "rb").read()
+    if a != b:
+        at = next((i for i in range(min(len(a), len(b))) if a[i] != b[i]), min(len(a), len(b)))
+        sys.exit(f"PLY files differ ({len(a)} and {len(b)} bytes), first at byte {at}")
+    s1, s2 = json.load(open(one_json)), json.load(open(mpi_json))
+    ranks = s2.get("ranks")
+    if not isinstance(ranks, list) or len(ranks) != args.np:
+        sys.exit(f"ranks block: {ranks}")
+    for s in (s1, s2):
+        for k in TIMINGS:
+            s.pop(k, None)
+        s.pop("output", None)
+    if s1 != s2:
+        keys = sorted(k for k in set(s1) | set(s2) if s1.get(k) != s2.get(k))
+        sys.exit("summaries differ in " + ", ".join(f"{k}: {s1.get(k)} vs {s2.get(k)}" for k in keys))
+    if sum(r["triangles"] for r in ranks) != s1["triangles"] or sum(r["vertices"] for r in ranks) != s1["vertices"]:
+        sys.exit(f"ranks do not add up: {ranks}")
+    if grid is not None:
+        total = leaf_voxels(inputs, grid)
+        reads = [r["voxels_read"] for r in ranks]
+        # Each rank reads its share of the leaves plus a halo of one leaf around its blocks.
+        for r in ranks:
+            share = total * r["weight"] / sum(q["weight"] for q in ranks)
+            if args.np > 1 and not r["voxels_read"] < total:
+                sys.exit(f"rank {r['rank']} read every leaf: {reads} of {total}")
+            if r["voxels_read"] > share + 0.6 * total:
+                sys.exit(f"rank {r['rank']} read {r['voxels_read']} voxels, its share is {share:.0f} of {total}")
+        print(f"voxels read per rank: {reads} of {total} ({[round(x / total, 3) for x in reads]})")
+    print(f"np {args.np}: {name}: byte-identical PLY ({len(a)} bytes), equal summary")
+
+
+def bad_input(args):
+    work = os.path.join(args.work, f"bad_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    out = os.path.join(work, "out.ply")
+    truncated = os.path.join(work, "truncated.vdb")
+    with open(os.path.join(args.data, "sphere.vdb"), "rb") as f:
+        open(truncated, "wb").write(f.read()[:300000])
+    # A non-finite value that only the last rank reads (x > 0 is at the end of the block order).
+    nan_vdb = os.path.join(work, "nan.vdb")
+    import pyopenvdb as vdb
+    g = vdb.read(os.path.join(args.data, "sphere.vdb"), "ls_sphere")
+    g.getAccessor().setValueOn((60, 1, 2), float("nan"))
+    vdb.write(nan_vdb, grids=[g])
+    cases = [
+        [nan_vdb],
+        [os.path.join(work, "missing.vdb")],
+        [truncated],
+        [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
+        [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
+        [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw")],          # not yet under MPI
+    ]
+    for extra in cases:
+        r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+        lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
+        if r.returncode != 2 or len(lines) != 1:
+            sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
+        if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
+            sys.exit(f"{extra}: an output was left behind")
+        if "--hidden-features" not in extra and not extra[0].endswith(".raw"):  # one process says the same
+            one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+            if one.returncode != 2 or one.stderr.strip() != lines[0]:
+                sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
+        print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
+
+
+def big_sphere(work):
+    path = os.path.join(work, "big_sphere.vdb")
+    if not os.path.exists(path):
+        import pyopenvdb as vdb
+        g = vdb.createLevelSetSphere(radius=260.0, center=(0, 0, 0), voxelSize=1.0, halfWidth=3.0)
+        g.name = "ls"
+        vdb.write(path, grids=[g])
+    return path
+
+
+def children(pid):
+    try:
+        out = run(["ps", "-o", "pid=", "--ppid", str(pid)]).stdout.split()
+    except OSError:
+        return []
+    return [int(p) for p in out]
+
+
+def interrupt(args):
+    work = os.path.join(args.work, f"interrupt_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    src = big_sphere(args.work)
+    out = os.path.join(work, "out.ply")
+    # SIGINT to every rank, as srun forwards Ctrl-C (mpirun itself turns it into SIGTERM).
+    for target in ("ranks", "mpirun"):
+        p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", src, "-o", out, "-j", "1"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ranks = []
+        deadline = time.time() + 30
+        while len(ranks) < args.np and time.time() < deadline:
+            ranks = children(p.pid)
+            time.sleep(0.05)
+        time.sleep(1.0)
+        if target == "ranks":
+            for pid in ranks:
+                os.kill(pid, signal.SIGINT)
+        else:
+            p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+        expect = 130 if target == "ranks" else None
+        if expect is not None and p.returncode != expect:
+            sys.exit(f"SIGINT to the {target}: exit {p.returncode}, expected {expect}\n{err}")
+        if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
+            sys.exit(f"SIGINT to the {target}: an output was left behind")
+        print(f"np {args.np}: SIGINT to the {target}: exit {p.returncode}, no output")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    for k in ("cli", "mpirun", "case", "data", "work"):
+        ap.add_argument("--" + k, required=True)
+    ap.add_argument("--np", type=int, required=True)
+    args = ap.parse_args()
+    os.makedirs(args.work, exist_ok=True)
+    sphere, smoke = os.path.join(args.data, "sphere.vdb"), os.path.join(args.data, "smoke.vdb")
+    if args.case == "sphere":
+        compare(args, "sphere", sphere, [], grid="ls_sphere")
+    elif args.case == "sphere_linear":
+        compare(args, "sphere_linear", sphere, ["--linear-only"], grid="ls_sphere")
+    elif args.case == "fog":
+        compare(args, "fog", smoke, ["--grid", "density"], grid="density")
+    elif args.case == "fog_k":
+        compare(args, "fog_k", smoke, ["--isovalue", "0.1", "--method", "cubic"], grid="density")
+    elif args.case == "bad_input":
+        bad_input(args)
+    elif args.case == "interrupt":
+        interrupt(args)
+    else:
+        sys.exit("unknown case " + args.case)
+
+
+if __name__ == "__main__":
+    main()
