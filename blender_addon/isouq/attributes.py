@@ -83,10 +83,52 @@ def fill_mesh(me, mesh, checked=False):
     @raise ValueError, with `me` unchanged, if the data is inconsistent."""
     if not checked:
         check_mesh(mesh)
-    me.clear_geometry()
     for key in HEADER_KEYS:
         if key in me:
             del me[key]
+    columns = [(col, face_name(col, mesh.vertex_attributes) if domain == "FACE" else col, values, domain)
+               for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes))
+               for col, values in table.items()]
+    if _same_faces(me, mesh):  # e.g. live mode's new method: new positions and columns only
+        names = {name for _, name, _, _ in columns}
+        for stale in [a.name for a in me.attributes if a.name not in names and not a.name.startswith(".")]:
+            me.attributes.remove(me.attributes[stale])  # as clear_geometry would
+        _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
+        me.update()
+    else:
+        _fill_geometry(me, mesh)
+    types = {}
+    for col, name, values, domain in columns:
+        set_attribute(me, name, values, domain)
+        types[name] = {"ply": col, "dtype": values.dtype.str}
+    me["isouq_ply_types"] = json.dumps(types)
+    if mesh.index_to_world is not None:
+        me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
+    if mesh.isovalue is not None:
+        me["isouq_isovalue"] = mesh.isovalue
+    if mesh.method:
+        me["isouq_method"] = mesh.method
+    return me
+
+
+def _same_faces(me, mesh):
+    """Whether `me` already has `mesh`'s vertex count and faces (corners and face sizes), so
+    its loops, faces and edges stay. Reading them back costs about a tenth of setting them."""
+    if (len(me.vertices) != mesh.vertex_count or len(me.polygons) != mesh.face_count
+            or len(me.loops) != len(mesh.corners) or not len(me.loops)):
+        return False
+    current = np.empty(len(me.loops), np.uint32)
+    me.loops.foreach_get("vertex_index", current)
+    if not np.array_equal(current, mesh.corners):
+        return False
+    totals = np.empty(len(me.polygons), np.uint32)
+    me.polygons.foreach_get("loop_total", totals)
+    return np.array_equal(totals, mesh.loop_total)
+
+
+def _fill_geometry(me, mesh):
+    """Replaces every vertex, corner, face and edge of `me` (its attributes go too)."""
+    me.clear_geometry()
     me.vertices.add(mesh.vertex_count)
     _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
     # The corner, face and edge fields are unsigned in Blender's RNA: foreach_set copies a
@@ -105,20 +147,6 @@ def fill_mesh(me, mesh, checked=False):
         _set_checked(me.edges, "vertices", mesh.edges.astype(np.uint32, copy=False), 2 * len(mesh.edges))
         _set_checked(me.loops, "edge_index", mesh.corner_edges.astype(np.uint32, copy=False), corners)
         me.update()
-    types = {}
-    for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes)):
-        for col, values in table.items():
-            name = face_name(col, mesh.vertex_attributes) if domain == "FACE" else col
-            set_attribute(me, name, values, domain)
-            types[name] = {"ply": col, "dtype": values.dtype.str}
-    me["isouq_ply_types"] = json.dumps(types)
-    if mesh.index_to_world is not None:
-        me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
-    if mesh.isovalue is not None:
-        me["isouq_isovalue"] = mesh.isovalue
-    if mesh.method:
-        me["isouq_method"] = mesh.method
-    return me
 
 
 def face_name(name, vertex_attributes):
@@ -129,10 +157,12 @@ def face_name(name, vertex_attributes):
 def set_attribute(me, name, values, domain):
     """Creates or replaces attribute `name` on `me` and fills it (length checked)."""
     kind = _blender_type(values)
-    old = me.attributes.get(name)
-    if old is not None:
-        me.attributes.remove(old)
-    attr = me.attributes.new(name, kind, domain)
+    attr = me.attributes.get(name)
+    if attr is not None and (attr.data_type, attr.domain) != (kind, domain):
+        me.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = me.attributes.new(name, kind, domain)
     _set_checked(attr.data, "value", values.astype(_NUMPY_OF[kind], copy=False), len(attr.data))
     return attr
 
