@@ -11,6 +11,7 @@ import json
 import time
 
 import bpy
+import numpy as np
 
 from . import attributes, native, views
 
@@ -53,6 +54,7 @@ def schedule(context, remesh=True):
 
 
 _running = {}   # the mesh being made off the UI thread: thread, obj, settings, result, error
+_last_triangles = {}  # request (JSON) -> the last live mesh's triangles
 
 
 def _tick():
@@ -108,7 +110,13 @@ def _mesh(module, request, isovalue, method):
     mesh = module.mesh(vol, isovalue=vol.isovalue if isovalue is None else isovalue, method=method,
                        summary=False)
     meshed = time.perf_counter()
-    edges = mesh.edges()  # on this thread too: Blender then computes no edges
+    # The edge table on this thread too (Blender then computes none), unless the triangles are
+    # the last mesh's (a new method): attributes.fill_mesh then keeps the faces and edges.
+    previous = _last_triangles.get(json.dumps(request, sort_keys=True))
+    same = previous is not None and np.array_equal(previous, mesh.triangles)
+    edges = (None, None) if same else mesh.edges()
+    _last_triangles.clear()
+    _last_triangles[json.dumps(request, sort_keys=True)] = mesh.triangles
     timing = {"load_ms": 1e3 * (loaded - start), "mesh_ms": 1e3 * (meshed - loaded),
               "edges_ms": 1e3 * (time.perf_counter() - meshed)}
     return mesh, edges, timing
