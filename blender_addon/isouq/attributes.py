@@ -40,6 +40,14 @@ def check_mesh(mesh):
         ends = mesh.loop_start + mesh.loop_total
         if ends[-1] != len(mesh.corners) or np.any(mesh.loop_total < 3):
             raise ValueError("face corner table is inconsistent")
+        if mesh.corners.min() < 0 or mesh.corners.max() >= mesh.vertex_count:
+            raise ValueError("a face corner is not a vertex")
+    if mesh.edges is not None:
+        edges, corner_edges = np.asarray(mesh.edges), np.asarray(mesh.corner_edges)
+        if (edges.ndim != 2 or edges.shape[1] != 2 or len(corner_edges) != len(mesh.corners)
+                or (len(edges) and edges.max() >= mesh.vertex_count)
+                or (len(corner_edges) and corner_edges.max() >= len(edges))):
+            raise ValueError("the edge table is inconsistent")
         tri = mesh.corners.reshape(-1, 3) if np.all(mesh.loop_total == 3) else None
         if tri is not None and np.any((tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2])
                                       | (tri[:, 0] == tri[:, 2])):
@@ -75,24 +83,24 @@ def fill_mesh(me, mesh, checked=False):
     @raise ValueError, with `me` unchanged, if the data is inconsistent."""
     if not checked:
         check_mesh(mesh)
-    me.clear_geometry()
     for key in HEADER_KEYS:
         if key in me:
             del me[key]
-    me.vertices.add(mesh.vertex_count)
-    _set_checked(me.vertices, "co", mesh.positions.astype(np.float32), 3 * mesh.vertex_count)
-    me.loops.add(len(mesh.corners))
-    _set_checked(me.loops, "vertex_index", mesh.corners.astype(np.int32), len(mesh.corners))
-    me.polygons.add(mesh.face_count)
-    _set_checked(me.polygons, "loop_start", mesh.loop_start.astype(np.int32), mesh.face_count)
-    _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.int32), mesh.face_count)
-    me.update(calc_edges=True)
+    columns = [(col, face_name(col, mesh.vertex_attributes) if domain == "FACE" else col, values, domain)
+               for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes))
+               for col, values in table.items()]
+    if _same_faces(me, mesh):  # e.g. live mode's new method: new positions and columns only
+        names = {name for _, name, _, _ in columns}
+        for stale in [a.name for a in me.attributes if a.name not in names and not a.name.startswith(".")]:
+            me.attributes.remove(me.attributes[stale])  # as clear_geometry would
+        _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
+        me.update()
+    else:
+        _fill_geometry(me, mesh)
     types = {}
-    for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes)):
-        for col, values in table.items():
-            name = face_name(col, mesh.vertex_attributes) if domain == "FACE" else col
-            set_attribute(me, name, values, domain)
-            types[name] = {"ply": col, "dtype": values.dtype.str}
+    for col, name, values, domain in columns:
+        set_attribute(me, name, values, domain)
+        types[name] = {"ply": col, "dtype": values.dtype.str}
     me["isouq_ply_types"] = json.dumps(types)
     if mesh.index_to_world is not None:
         me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
@@ -103,6 +111,44 @@ def fill_mesh(me, mesh, checked=False):
     return me
 
 
+def _same_faces(me, mesh):
+    """Whether `me` already has `mesh`'s vertex count and faces (corners and face sizes), so
+    its loops, faces and edges stay. Reading them back costs about a tenth of setting them."""
+    if (len(me.vertices) != mesh.vertex_count or len(me.polygons) != mesh.face_count
+            or len(me.loops) != len(mesh.corners) or not len(me.loops)):
+        return False
+    current = np.empty(len(me.loops), np.uint32)
+    me.loops.foreach_get("vertex_index", current)
+    if not np.array_equal(current, mesh.corners):
+        return False
+    totals = np.empty(len(me.polygons), np.uint32)
+    me.polygons.foreach_get("loop_total", totals)
+    return np.array_equal(totals, mesh.loop_total)
+
+
+def _fill_geometry(me, mesh):
+    """Replaces every vertex, corner, face and edge of `me` (its attributes go too)."""
+    me.clear_geometry()
+    me.vertices.add(mesh.vertex_count)
+    _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
+    # The corner, face and edge fields are unsigned in Blender's RNA: foreach_set copies a
+    # buffer of exactly that type (uint32) at once and any other one element at a time (int32
+    # was 17x slower on 1.3M corners; docs/blender.md "Live mode").
+    corners = len(mesh.corners)
+    me.loops.add(corners)
+    _set_checked(me.loops, "vertex_index", mesh.corners.astype(np.uint32, copy=False), corners)
+    me.polygons.add(mesh.face_count)
+    _set_checked(me.polygons, "loop_start", mesh.loop_start.astype(np.uint32, copy=False), mesh.face_count)
+    _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.uint32, copy=False), mesh.face_count)
+    if mesh.edges is None:
+        me.update(calc_edges=True)  # Blender hashes the edges (0.6 s for 1.3M corners)
+    else:  # the module's edge table: Blender then computes none (mesh.update keeps them)
+        me.edges.add(len(mesh.edges))
+        _set_checked(me.edges, "vertices", mesh.edges.astype(np.uint32, copy=False), 2 * len(mesh.edges))
+        _set_checked(me.loops, "edge_index", mesh.corner_edges.astype(np.uint32, copy=False), corners)
+        me.update()
+
+
 def face_name(name, vertex_attributes):
     """The Blender name of face property `name` (suffix _face when a vertex has it too)."""
     return name + "_face" if name in vertex_attributes else name
@@ -111,11 +157,13 @@ def face_name(name, vertex_attributes):
 def set_attribute(me, name, values, domain):
     """Creates or replaces attribute `name` on `me` and fills it (length checked)."""
     kind = _blender_type(values)
-    old = me.attributes.get(name)
-    if old is not None:
-        me.attributes.remove(old)
-    attr = me.attributes.new(name, kind, domain)
-    _set_checked(attr.data, "value", values.astype(_NUMPY_OF[kind]), len(attr.data))
+    attr = me.attributes.get(name)
+    if attr is not None and (attr.data_type, attr.domain) != (kind, domain):
+        me.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = me.attributes.new(name, kind, domain)
+    _set_checked(attr.data, "value", values.astype(_NUMPY_OF[kind], copy=False), len(attr.data))
     return attr
 
 

@@ -11,6 +11,7 @@ import json
 import time
 
 import bpy
+import numpy as np
 
 from . import attributes, native, views
 
@@ -20,7 +21,8 @@ REQUEST_KEY = "isouq_request"   # Object custom property: the request the object
 
 _volumes = {}                   # (input, grid, resolution) -> isouq_native.Volume, oldest first
 _pending = {"remesh": False, "views": False, "since": None}
-last_timing = {}                # the last update: load_ms, mesh_ms, blender_ms, total_ms, vertices
+last_timing = {}                # the last update: load_ms, mesh_ms, edges_ms (thread), fill_ms, views_ms,
+                                # depsgraph_ms, blender_ms (their sum), total_ms, vertices
 
 
 def remember(obj, request):
@@ -52,6 +54,7 @@ def schedule(context, remesh=True):
 
 
 _running = {}   # the mesh being made off the UI thread: thread, obj, settings, result, error
+_last_triangles = {}  # request (JSON) -> the last live mesh's triangles
 
 
 def _tick():
@@ -106,7 +109,17 @@ def _mesh(module, request, isovalue, method):
     loaded = time.perf_counter()
     mesh = module.mesh(vol, isovalue=vol.isovalue if isovalue is None else isovalue, method=method,
                        summary=False)
-    return mesh, 1e3 * (loaded - start), 1e3 * (time.perf_counter() - loaded)
+    meshed = time.perf_counter()
+    # The edge table on this thread too (Blender then computes none), unless the triangles are
+    # the last mesh's (a new method): attributes.fill_mesh then keeps the faces and edges.
+    previous = _last_triangles.get(json.dumps(request, sort_keys=True))
+    same = previous is not None and np.array_equal(previous, mesh.triangles)
+    edges = (None, None) if same else mesh.edges()
+    _last_triangles.clear()
+    _last_triangles[json.dumps(request, sort_keys=True)] = mesh.triangles
+    timing = {"load_ms": 1e3 * (loaded - start), "mesh_ms": 1e3 * (meshed - loaded),
+              "edges_ms": 1e3 * (time.perf_counter() - meshed)}
+    return mesh, edges, timing
 
 
 def _apply_running(context):
@@ -174,19 +187,22 @@ def update(context, obj):
     _apply(context, obj, *result, start=start)
 
 
-def _apply(context, obj, mesh, load_ms, mesh_ms, start):
+def _apply(context, obj, mesh, edges, timing, start):
     """The new mesh into obj.data, its views redone, the depsgraph updated; the timings kept."""
     applying = time.perf_counter()
-    attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh))
+    attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh, edges))
+    filled = time.perf_counter()
     attributes.remember_primary_positions(obj.data)
     obj.isouq.method_shown = mesh.method
     obj.isouq.summary = json.dumps({"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
                                     "isovalue": float(mesh.isovalue), "method": mesh.method, "live": True})
     if len(obj.data.vertices):
         views.reapply(context, obj)
+    viewed = time.perf_counter()
     context.view_layer.update()
     done = time.perf_counter()
-    last_timing.update(load_ms=load_ms, mesh_ms=mesh_ms, blender_ms=1e3 * (done - applying),
+    last_timing.update(timing, fill_ms=1e3 * (filled - applying), views_ms=1e3 * (viewed - filled),
+                       depsgraph_ms=1e3 * (done - viewed), blender_ms=1e3 * (done - applying),
                        total_ms=1e3 * (done - start), vertices=len(mesh.vertices))
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]

@@ -97,18 +97,24 @@ def error():
     return _loaded.get("error", "")
 
 
-def to_isouq_mesh(mesh):
+def to_isouq_mesh(mesh, edges=None):
     """A module Mesh as the ply_io.IsouqMesh the add-on builds objects from (views.import_mesh,
-    attributes.fill_mesh): the same arrays the PLY of that mesh holds, without the file."""
-    triangles = np.asarray(mesh.triangles, np.int32)
+    attributes.fill_mesh): the same arrays the PLY of that mesh holds, without the file, and
+    the edge table (`mesh.edges()`, or `edges` when the caller made it already; (None, None):
+    none, Blender computes them if it needs to) so Blender computes none. Indices stay uint32,
+    the type Blender copies at once (attributes.fill_mesh)."""
+    triangles = np.asarray(mesh.triangles)
     count = len(triangles)
+    edge_table, corner_edges = mesh.edges() if edges is None else edges
     return ply_io.IsouqMesh(
         positions=mesh.vertices,
-        loop_start=np.arange(0, 3 * count, 3, dtype=np.int32),
-        loop_total=np.full(count, 3, np.int32),
+        loop_start=np.arange(0, 3 * count, 3, dtype=np.uint32),
+        loop_total=np.full(count, 3, np.uint32),
         corners=triangles.reshape(-1),
         vertex_attributes=dict(mesh.columns),
         face_attributes=dict(mesh.face_columns),
         index_to_world=mesh.index_to_world,
         isovalue=float(mesh.isovalue),
-        method=mesh.method)
+        method=mesh.method,
+        edges=edge_table,
+        corner_edges=corner_edges)

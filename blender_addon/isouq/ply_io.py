@@ -49,6 +49,8 @@ class IsouqMesh:
     isovalue: float = None
     method: str = None
     comments: list = field(default_factory=list)
+    edges: np.ndarray = None              # (E, 2) unique edges and (sum(loop_total),) each
+    corner_edges: np.ndarray = None       # corner's edge, when known (the module's Mesh.edges())
 
     @property
     def vertex_count(self):

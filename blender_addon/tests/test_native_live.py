@@ -110,11 +110,28 @@ def test_live_isovalue_and_method_change_the_mesh(module, no_subprocess, empty_s
     expected = module.mesh(module.load("field:tangle", resolution=32), isovalue=0.2)
     assert len(after) == len(expected.vertices) != len(before)
     assert after.tobytes() == np.ascontiguousarray(expected.vertices).tobytes()
+    # The module's edge table (Mesh.edges): every triangle side once, each corner on its side.
+    _, tri = arrays(obj)
+    sides = {tuple(sorted(p)) for t in tri.tolist() for p in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    pairs = np.empty(2 * len(me.edges), np.int32)
+    me.edges.foreach_get("vertices", pairs)
+    assert {tuple(sorted(p)) for p in pairs.reshape(-1, 2).tolist()} == sides and len(me.edges) == len(sides)
+    corner_edge = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("edge_index", corner_edge)
+    sides_in_order = [tuple(sorted(p)) for t in tri.tolist() for p in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))]
+    assert [tuple(sorted(p)) for p in pairs.reshape(-1, 2)[corner_edge].tolist()] == sides_in_order
+    assert me.validate() is False  # nothing for Blender to fix
     s.method = "linear"
     live.flush(context)
     linear, _ = arrays(obj)
     assert obj.isouq.method_shown == "linear" and len(linear) == len(after)
     assert not np.array_equal(linear, after)
+    # Same faces: the faces and edges stayed, positions and columns are the new method's.
+    assert np.array_equal(arrays(obj)[1], tri) and len(me.edges) == len(sides)
+    direct = module.mesh(module.load("field:tangle", resolution=32), isovalue=0.2, method="linear")
+    assert linear.tobytes() == np.ascontiguousarray(direct.vertices).tobytes()
+    assert attributes.stored_positions(me).tobytes() == linear.tobytes()  # C3's primary, not stale
+    assert np.array_equal(attributes.get_attribute(me, "err_est"), direct.columns["err_est"], equal_nan=True)
     # The threshold redoes the views (C1 selection) without re-meshing.
     obj["isouq_view_selection"] = "THRESHOLD"
     s.measure = "err_est"
@@ -139,8 +156,12 @@ def live_timings(context, path, isovalues, **settings):
     for k in isovalues[1:] * 3:
         s.isovalue = k
         rows.append(dict(live.flush(context)))
+    methods = []  # same faces: positions and columns only (attributes.fill_mesh)
+    for method in ("linear", "cubic", "weno") * 3:
+        s.method = method
+        methods.append(dict(live.flush(context)))
     s.live = False
-    return obj, load, rows
+    return obj, load, rows, methods
 
 
 @pytest.mark.parametrize("name,grid,isovalues", [
@@ -151,14 +172,18 @@ def test_live_update_times(module, no_subprocess, empty_scene, name, grid, isova
     path = os.path.join(DATA, name)
     if not os.path.isfile(path):
         pytest.skip(f"{path} not found")
-    obj, load, rows = live_timings(empty_scene, path, isovalues, grid=grid)
-    median = {key: float(np.median([r[key] for r in rows])) for key in
-              ("mesh_ms", "blender_ms", "total_ms", "since_change_ms")}
+    obj, load, rows, methods = live_timings(empty_scene, path, isovalues, grid=grid)
+    keys = ("mesh_ms", "edges_ms", "fill_ms", "views_ms", "depsgraph_ms", "blender_ms", "total_ms",
+            "since_change_ms")
+    median = {key: float(np.median([r[key] for r in rows])) for key in keys}
     report = {"input": name, "first_update_ms": load["total_ms"], "load_ms": load["load_ms"],
-              "vertices": [r["vertices"] for r in rows[:len(isovalues) - 1]], **median}
+              "vertices": [r["vertices"] for r in rows[:len(isovalues) - 1]], **median,
+              "method_change": {key: float(np.median([r[key] for r in methods])) for key in keys}}
     print(json.dumps(report))
     out = os.environ.get("ISOUQ_LIVE_TIMINGS")
     if out:
         with open(out, "a", encoding="utf-8") as f:
             f.write(json.dumps(report) + "\n")
     assert all(r["vertices"] > 0 for r in rows)
+    assert len(obj.data.vertices) == methods[-1]["vertices"]
+    assert obj.data.validate() is False  # the module's edges: nothing for Blender to fix

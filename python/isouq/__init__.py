@@ -58,6 +58,13 @@ class Mesh:
         import numpy as np
         return np.array(self._handle.info["index_to_world"], np.float64).reshape(4, 4)
 
+    def edges(self):
+        """(edges, corner_edges): the unique undirected edges, E x 2 uint32 (lower vertex
+        first, sorted), and each corner's edge, 3M uint32 (corner 3t+c runs from triangles[t, c]
+        to triangles[t, (c+1) % 3]), for hosts that store edges (Blender's live mode). Computed
+        in C++ with the GIL released; the same for any thread count."""
+        return self._handle.edges()
+
     def write(self, path, format="binary"):
         """Writes the mesh as the CLI does (SPEC §6 PLY, or VTK XML PolyData for a .vtp path),
         atomically: a failed write leaves no file and never clobbers an existing one.

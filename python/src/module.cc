@@ -19,6 +19,7 @@
 #endif
 
 #include <openvdb/Exceptions.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <atomic>
@@ -30,6 +31,7 @@
 #include <exception>
 #include <filesystem>
 #include <future>
+#include <algorithm>
 #include <thread>
 
 namespace py = pybind11;
@@ -176,6 +178,72 @@ py::dict columnsOf(const isouq::AttributeTable& table, py::handle owner)
         std::visit([&](const auto& values) { out[py::str(column.name)] = view(values.data(), values.size(), 1, owner); },
             column.data);
     return out;
+}
+
+/// The mesh's unique undirected edges and each corner's edge, for hosts that store edges
+/// (Blender's MEdge and MLoop.e; docs/blender.md "Live mode"). Corner 3t+c of triangle t runs
+/// from vertex c to vertex (c+1)%3. Edges are ordered by (lower vertex, higher vertex), so the
+/// result does not depend on the thread count: corners are bucketed by their lower vertex
+/// (counting sort), each bucket is sorted by the higher vertex, and the edge ids follow the
+/// buckets' prefix sums. Returns (edges E x 2 uint32, corner_edges 3M uint32).
+py::tuple edgesOf(const MeshHandle& handle)
+{
+    const isouq::Mesh& mesh = handle.data->mesh;
+    const std::size_t n = mesh.positions.size(), corners = 3 * mesh.triangles.size();
+    if (corners >= std::size_t(std::numeric_limits<std::uint32_t>::max()))
+        throw isouq::InputError("a mesh of " + std::to_string(corners) + " corners exceeds 32-bit edge indices");
+    py::array_t<std::uint32_t> cornerEdges{py::ssize_t(corners)};
+    std::uint32_t* out = cornerEdges.mutable_data();
+    std::vector<std::uint32_t> pairs; // lower, higher per edge
+    {
+        py::gil_scoped_release release;
+        const std::uint32_t* tri = corners ? mesh.triangles[0].asPointer() : nullptr;
+        auto ends = [tri](std::size_t c, std::uint32_t& lo, std::uint32_t& hi) {
+            const std::uint32_t a = tri[c], b = tri[c - c % 3 + (c % 3 + 1) % 3];
+            lo = std::min(a, b);
+            hi = std::max(a, b);
+        };
+        std::vector<std::size_t> start(n + 1, 0);
+        for (std::size_t c = 0; c < corners; ++c) {
+            std::uint32_t lo, hi;
+            ends(c, lo, hi);
+            ++start[lo + 1];
+        }
+        for (std::size_t v = 0; v < n; ++v) start[v + 1] += start[v];
+        std::vector<std::uint64_t> bucket(corners); // (higher vertex << 32) | corner
+        std::vector<std::size_t> cursor(start.begin(), start.end() - 1);
+        for (std::size_t c = 0; c < corners; ++c) {
+            std::uint32_t lo, hi;
+            ends(c, lo, hi);
+            bucket[cursor[lo]++] = (std::uint64_t(hi) << 32) | c;
+        }
+        std::vector<std::size_t> firstEdge(n + 1, 0); // edges of lower vertex v: firstEdge[v]..
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t v = r.begin(); v < r.end(); ++v) {
+                std::sort(bucket.begin() + start[v], bucket.begin() + start[v + 1]);
+                std::size_t unique = 0;
+                for (std::size_t i = start[v]; i < start[v + 1]; ++i)
+                    unique += i == start[v] || (bucket[i] >> 32) != (bucket[i - 1] >> 32);
+                firstEdge[v + 1] = unique;
+            }
+        });
+        for (std::size_t v = 0; v < n; ++v) firstEdge[v + 1] += firstEdge[v];
+        pairs.resize(2 * firstEdge[n]);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t v = r.begin(); v < r.end(); ++v) {
+                std::size_t e = firstEdge[v];
+                for (std::size_t i = start[v]; i < start[v + 1]; ++i) {
+                    if (i > start[v] && (bucket[i] >> 32) != (bucket[i - 1] >> 32)) ++e;
+                    pairs[2 * e] = std::uint32_t(v);
+                    pairs[2 * e + 1] = std::uint32_t(bucket[i] >> 32);
+                    out[bucket[i] & 0xffffffffu] = std::uint32_t(e);
+                }
+            }
+        });
+    }
+    py::array_t<std::uint32_t> edges({py::ssize_t(pairs.size() / 2), py::ssize_t(2)});
+    std::copy(pairs.begin(), pairs.end(), edges.mutable_data());
+    return py::make_tuple(edges, cornerEdges);
 }
 
 /// Cooks one node outside a graph (the context a direct cook gets, Node.h) with @a given
@@ -383,6 +451,7 @@ PYBIND11_MODULE(_core, m)
         .def_property_readonly("isovalue", [](const MeshHandle& h) { return h.data->isovalue; })
         .def_property_readonly("method", [](const MeshHandle& h) { return h.data->method; })
         .def_property_readonly("info", [](const MeshHandle& h) { return toPython(h.data->info); })
+        .def("edges", &edgesOf)
         .def("write", &writeMesh, py::arg("path"), py::arg("format") = "binary");
 
     py::class_<MemoryHandle>(m, "MemoryHandle").def_property_readonly("input", &MemoryHandle::input);

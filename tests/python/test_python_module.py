@@ -273,6 +273,26 @@ def test_arrays_are_views(isouq):
     assert np.isfinite(a).any()
 
 
+@pytest.mark.parametrize("source,kwargs", [("field:tangle", {"resolution": 24}),
+                                           ("fuel_64x64x64_uint8.raw", {"isovalue": 80.0})])
+def test_edges_equal_a_brute_force_count(isouq, data_dir, source, kwargs):
+    """Mesh.edges() (Blender's live mode gives them to the mesh): every triangle side once,
+    sorted by (lower, higher) vertex, each corner naming its side (against a Python set of
+    the sides); the same result on a second call."""
+    if source.endswith(".raw"):
+        source = str(data_dir / source)
+    m = isouq.mesh(source, summary=False, **kwargs)
+    edges, corner_edges = m.edges()
+    assert edges.dtype == np.uint32 and corner_edges.dtype == np.uint32
+    tri = m.triangles.astype(np.int64)
+    sides = [(min(a, b), max(a, b)) for t in tri.tolist() for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))]
+    assert [tuple(e) for e in edges.tolist()] == sorted(set(sides))
+    assert len(corner_edges) == len(sides)
+    assert [tuple(e) for e in edges[corner_edges].tolist()] == sides
+    again = m.edges()
+    assert bits(again[0]) == bits(edges) and bits(again[1]) == bits(corner_edges)
+
+
 def test_example_notebook(isouq, tmp_path):
     """examples/python/threshold_err_est.py meshes an array, thresholds err_est, writes a PNG."""
     env = dict(os.environ, PYTHONPATH=str(module_dir()), MPLBACKEND="Agg")
