@@ -88,8 +88,12 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
         throw InputError("'" + path + "' is not a VDB file (bad magic number)");
     }
     const std::uint32_t version = r.pod<std::uint32_t>();
+    // OpenVDB only warns about a version it does not know and reads on unchecked, so the
+    // versions this walk knows are the ones read (218, from 2013, up to the library's own).
     if (version < openvdb::OPENVDB_FILE_VERSION_BOOST_UUID || version > openvdb::OPENVDB_FILE_VERSION) {
-        return; // outside what the walk below knows; OpenVDB decides
+        throw InputError("'" + path + "' has VDB file format version " + std::to_string(version)
+            + "; this build reads versions " + std::to_string(openvdb::OPENVDB_FILE_VERSION_BOOST_UUID)
+            + " to " + std::to_string(openvdb::OPENVDB_FILE_VERSION));
     }
     r.skip(8);                                  // library major, minor
     const bool hasOffsets = r.pod<char>() != 0;
