@@ -154,3 +154,14 @@ TEST_CASE("ReadersFuzz: a raw ball at the origin meshes without undefined behavi
     settings.uncertainty = true;
     CHECK(isouq::extractIsosurface(*volume.grid, settings).triangles.size() > 0);
 }
+
+TEST_CASE("ReadersFuzz: a file format version the walk does not know is refused", "[sources][vdb][fuzz]")
+{
+    // Was: the walk left unknown versions to OpenVDB, which only warns and reads on; a 1 KB file
+    // then asked for 4 GB descriptor strings.
+    for (std::uint32_t version : {217u, 225u, 2784u, 1073742048u}) {
+        std::vector<char> bytes = sphereVdb();
+        poke<std::uint32_t>(bytes, 8, version);
+        CHECK_THAT(loadError(bytes), Contains("VDB file format version " + std::to_string(version)));
+    }
+}
