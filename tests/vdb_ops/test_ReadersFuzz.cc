@@ -165,3 +165,13 @@ TEST_CASE("ReadersFuzz: a file format version the walk does not know is refused"
         CHECK_THAT(loadError(bytes), Contains("VDB file format version " + std::to_string(version)));
     }
 }
+
+TEST_CASE("ReadersFuzz: a file without grid offsets is refused", "[sources][vdb][fuzz]")
+{
+    // Was: the walk stopped at the file metadata of such files, and OpenVDB read every grid
+    // unchecked (4 GB strings in descriptors, metadata and transforms; long loops at the end).
+    std::vector<char> bytes = sphereVdb();
+    REQUIRE(bytes[20] == 1);
+    bytes[20] = 0;
+    CHECK_THAT(loadError(bytes), Contains("no grid offsets"));
+}

@@ -109,7 +109,12 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
         if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) r.fail("bad UUID");
     }
     walkMetadata(r); // file metadata
-    if (!hasOffsets) return;
+    // Without grid offsets (io::Stream output) OpenVDB reads every grid in one pass, each
+    // length unchecked, and this walk cannot find where one grid ends without reading it.
+    if (!hasOffsets) {
+        throw InputError("'" + path + "' was written as a VDB stream (no grid offsets), which isouq"
+            " does not read; save it with openvdb::io::File (any VDB tool's file output)");
+    }
     const std::int32_t grids = r.pod<std::int32_t>();
     if (grids < 0) r.fail("negative grid count");
     for (std::int32_t i = 0; i < grids; ++i) {
