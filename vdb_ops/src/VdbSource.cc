@@ -7,6 +7,7 @@
 #include <cctype>
 #include <filesystem>
 #include <fstream>
+#include <set>
 
 namespace isouq {
 namespace sources_internal {
@@ -65,14 +66,27 @@ private:
 /// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
 /// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
 /// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
+/// The metadata types OpenVDB reads as sizeof(T) bytes whatever the file says (TypedMetadata of
+/// a number, vector or matrix). Strings and the others (__delayedload, ...) read what they announce.
+bool fixedSizeMetadata(const std::string& type)
+{
+    using namespace openvdb;
+    static const std::set<std::string> sFixed = {BoolMetadata::staticTypeName(),
+        Int32Metadata::staticTypeName(), Int64Metadata::staticTypeName(), FloatMetadata::staticTypeName(),
+        DoubleMetadata::staticTypeName(), Vec2IMetadata::staticTypeName(), Vec2SMetadata::staticTypeName(),
+        Vec2DMetadata::staticTypeName(), Vec3IMetadata::staticTypeName(), Vec3SMetadata::staticTypeName(),
+        Vec3DMetadata::staticTypeName(), Vec4IMetadata::staticTypeName(), Vec4SMetadata::staticTypeName(),
+        Vec4DMetadata::staticTypeName(), Mat4SMetadata::staticTypeName(), Mat4DMetadata::staticTypeName()};
+    return sFixed.count(type) != 0;
+}
+
 void walkMetadata(BoundedReader& r)
 {
     for (std::uint32_t i = 0, n = r.pod<std::uint32_t>(); i < n; ++i) {
         r.string();
         const std::string type = r.string();
         const std::uint32_t bytes = r.pod<std::uint32_t>();
-        if (type != openvdb::StringMetadata::staticTypeName() && openvdb::Metadata::isRegisteredType(type)
-            && openvdb::Metadata::createMetadata(type)->size() != bytes) {
+        if (fixedSizeMetadata(type) && openvdb::Metadata::createMetadata(type)->size() != bytes) {
             r.fail("metadata of type " + type + " holds " + std::to_string(bytes) + " bytes");
         }
         r.skip(bytes);
