@@ -262,7 +262,7 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
     nlohmann::json doc;
     try {
         doc = nlohmann::json::parse(text);
-    } catch (const nlohmann::json::parse_error& e) {
+    } catch (const nlohmann::json::exception& e) { // parse_error, or out_of_range for 1e999
         throw GraphError(path + ": not valid JSON: " + e.what());
     }
     try {
