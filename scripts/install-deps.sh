@@ -7,9 +7,11 @@ packages=(
   build-essential cmake ccache git
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libopenexr-dev libblosc-dev
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
+  libnifti2-dev libteem-dev libtiff-dev libgdcm-dev
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
-  python3-openimageio hyperfine
+  python3-openimageio python3-openvdb hyperfine
+  python3-paraview python3-nibabel python3-pydicom python3-tifffile xvfb
   blender
 )
 if [ "${1:-}" = --fuzz ]; then

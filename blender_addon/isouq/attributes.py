@@ -58,30 +58,48 @@ def build_mesh(name, mesh):
     check_mesh(mesh)
     me = bpy.data.meshes.new(name)
     try:
-        me.vertices.add(mesh.vertex_count)
-        _set_checked(me.vertices, "co", mesh.positions.astype(np.float32), 3 * mesh.vertex_count)
-        me.loops.add(len(mesh.corners))
-        _set_checked(me.loops, "vertex_index", mesh.corners.astype(np.int32), len(mesh.corners))
-        me.polygons.add(mesh.face_count)
-        _set_checked(me.polygons, "loop_start", mesh.loop_start.astype(np.int32), mesh.face_count)
-        _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.int32), mesh.face_count)
-        me.update(calc_edges=True)
-        types = {}
-        for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes)):
-            for col, values in table.items():
-                name = face_name(col, mesh.vertex_attributes) if domain == "FACE" else col
-                set_attribute(me, name, values, domain)
-                types[name] = {"ply": col, "dtype": values.dtype.str}
-        me["isouq_ply_types"] = json.dumps(types)
-        if mesh.index_to_world is not None:
-            me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
-        if mesh.isovalue is not None:
-            me["isouq_isovalue"] = mesh.isovalue
-        if mesh.method:
-            me["isouq_method"] = mesh.method
+        fill_mesh(me, mesh, checked=True)
     except Exception:
         bpy.data.meshes.remove(me)
         raise
+    return me
+
+
+HEADER_KEYS = ("isouq_index_to_world", "isouq_index_to_world_fitted", "isouq_isovalue",
+               "isouq_method", "isouq_ply_types")
+
+
+def fill_mesh(me, mesh, checked=False):
+    """Replaces the geometry and attributes of the existing mesh `me` by `mesh` (an IsouqMesh);
+    materials stay. Used for each frame of a sequence (sequence.py).
+    @raise ValueError, with `me` unchanged, if the data is inconsistent."""
+    if not checked:
+        check_mesh(mesh)
+    me.clear_geometry()
+    for key in HEADER_KEYS:
+        if key in me:
+            del me[key]
+    me.vertices.add(mesh.vertex_count)
+    _set_checked(me.vertices, "co", mesh.positions.astype(np.float32), 3 * mesh.vertex_count)
+    me.loops.add(len(mesh.corners))
+    _set_checked(me.loops, "vertex_index", mesh.corners.astype(np.int32), len(mesh.corners))
+    me.polygons.add(mesh.face_count)
+    _set_checked(me.polygons, "loop_start", mesh.loop_start.astype(np.int32), mesh.face_count)
+    _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.int32), mesh.face_count)
+    me.update(calc_edges=True)
+    types = {}
+    for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes)):
+        for col, values in table.items():
+            name = face_name(col, mesh.vertex_attributes) if domain == "FACE" else col
+            set_attribute(me, name, values, domain)
+            types[name] = {"ply": col, "dtype": values.dtype.str}
+    me["isouq_ply_types"] = json.dumps(types)
+    if mesh.index_to_world is not None:
+        me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
+    if mesh.isovalue is not None:
+        me["isouq_isovalue"] = mesh.isovalue
+    if mesh.method:
+        me["isouq_method"] = mesh.method
     return me
 
 

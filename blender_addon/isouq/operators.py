@@ -4,12 +4,15 @@
 import os
 
 import bpy
-from bpy.props import BoolProperty, StringProperty
+import re
+import tempfile
+
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from . import pipeline, ply_io, render, ui, views
+from . import frames, pipeline, ply_io, props, render, sequence, ui, views
 
-_EXPECTED = (views.ViewError, ply_io.PlyError, ValueError, OSError)
+_EXPECTED = (views.ViewError, ply_io.PlyError, frames.SequenceError, ValueError, OSError)
 
 
 def _preferences(context):
@@ -61,6 +64,60 @@ class ISOUQ_OT_import_mesh(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
+class ISOUQ_OT_import_sequence(bpy.types.Operator, ImportHelper):
+    """Import a numbered set of isouq meshes (name.0001.ply, name.0002.ply, ...) as one object
+    whose mesh follows the scene frame, loaded just in time with every attribute"""
+    bl_idname = "isouq.import_sequence"
+    bl_label = "Import isouq mesh sequence"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filename_ext = ".ply"
+    filter_glob: StringProperty(default="*.ply", options={"HIDDEN"})
+    summary: StringProperty(name="Summary JSON", subtype="FILE_PATH",
+                            description="The sequence summary (--summary); empty: one found "
+                                        "beside the files")
+    mode: EnumProperty(name="Outside the frames", items=props.SEQUENCE_MODES, default="EXTEND")
+    offset: IntProperty(name="Frame offset", default=0,
+                        description="File frame = scene frame + offset")
+    set_frame_range: BoolProperty(name="Set frame range", default=True,
+                                  description="The scene's start and end become the sequence's")
+
+    def execute(self, context):
+        try:
+            obj = sequence.import_sequence(context, self.filepath, summary=self.summary or None,
+                                           mode=self.mode, offset=self.offset,
+                                           set_frame_range=self.set_frame_range)
+        except _EXPECTED as e:
+            self.report({"ERROR"}, f"{os.path.basename(self.filepath)}: {e}")
+            return {"CANCELLED"}
+        _make_active(context, obj)
+        seq = sequence.sequence_of(obj)
+        self.report({"INFO"}, f"{obj.name}: {len(seq.frames)} frames ({seq.first}-{seq.last}), "
+                              f"showing frame {obj.isouq.sequence_frame}")
+        return {"FINISHED"}
+
+
+def _make_active(context, obj):
+    for o in context.view_layer.objects:
+        o.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+
+
+def _safe_name(name):
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "volume"
+
+
+def sequence_folder(context, setting, name):
+    """The folder for a Volume sequence's frames: the setting ('//' = the .blend's folder; for an
+    unsaved file the temporary folder) and a subfolder per volume."""
+    if setting.startswith("//") and not bpy.data.filepath:
+        base = os.path.join(tempfile.gettempdir(), setting[2:] or "isouq_sequences")
+    else:
+        base = bpy.path.abspath(setting or "//isouq_sequences/")
+    return os.path.join(base, _safe_name(name))
+
+
 class ISOUQ_OT_run_pipeline(bpy.types.Operator):
     """Run `isouq mesh` on the VDB file or Volume object in the background and import the result.
     Esc cancels"""
@@ -76,15 +133,28 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
         volume, grid, path = s.volume, s.grid, s.input_path
         if not pipeline.is_generated(path):
             path = bpy.path.abspath(path)
+        self._sequence = None
         if volume is not None:
-            if volume.data.packed_file is not None:
+            data = volume.data
+            if data.packed_file is not None:
                 raise ValueError(f"volume '{volume.name}' is packed: unpack it to a .vdb file")
-            path = bpy.path.abspath(volume.data.grids.frame_filepath or volume.data.filepath)
-            if not grid and volume.data.grids.is_loaded and volume.data.grids.active is not None:
-                grid = volume.data.grids.active.name
+            path = bpy.path.abspath(data.grids.frame_filepath or data.filepath)
+            if not grid:
+                active = active_grid(data)
+                grid = active.name if active is not None else ""
+            if data.is_sequence and s.whole_sequence:
+                self._sequence = volume_sequence(volume)
+                path = self._sequence["pattern"]
         if not path:
             raise ValueError("choose a .vdb file or a Volume object")
-        if not pipeline.is_generated(path) and not os.path.isfile(path):
+        if self._sequence is None and frames.parse_pattern(path) is not None \
+                and not pipeline.is_generated(path):
+            seq = frames.detect(path)               # a typed pattern: a sequence too
+            self._sequence = {"pattern": path, "frames": f"{seq.first}-{seq.last}",
+                              "total": len(seq.frames), "offset": 0, "mode": "EXTEND",
+                              "name": frames.object_name(seq)}
+        if self._sequence is None and not pipeline.is_generated(path) \
+                and not os.path.isfile(path):
             raise ValueError(f"input file not found: {path}")
         prefs = _preferences(context)
         binary, tried = pipeline.find_binary(prefs.binary if prefs else "")
@@ -97,24 +167,72 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
                                        s.hidden_features, s.subdivisions, grid,
                                        resolution=s.resolution)
         self._volume = volume
-        return pipeline.Job(request, binary).start()
+        if self._sequence is None:
+            return pipeline.Job(request, binary).start()
+        seq = self._sequence
+        request.frames, request.resume = seq["frames"], s.resume
+        request.skip_missing = s.skip_missing
+        name = volume.name if volume is not None else seq["name"]
+        return pipeline.SequenceJob(request, binary, output_dir=sequence_folder(
+            context, s.sequence_dir, name), name=_safe_name(name), total=seq["total"]).start()
 
     def _finish(self, context, job):
         """Imports the outputs of a finished run; returns the operator result."""
         status = job.poll()
         try:
             if job.cancelled:
-                self.report({"WARNING"}, "isouq run cancelled")
+                kept = ""
+                if isinstance(job, pipeline.SequenceJob):
+                    done = frames.parse_pattern(job.mesh_path).scan().frames
+                    kept = (f"; {len(done)} finished frames kept in {job.output_dir} "
+                            "(Resume continues)")
+                self.report({"WARNING"}, "isouq run cancelled" + kept)
                 return {"CANCELLED"}
             if status != 0:
                 self.report({"ERROR"}, job.error_message())
                 return {"CANCELLED"}
+            if isinstance(job, pipeline.SequenceJob):
+                return self._import_sequence(context, job)
             if not os.path.isfile(job.mesh_path):
                 self.report({"ERROR"}, f"isouq finished but wrote no mesh ({job.binary})")
                 return {"CANCELLED"}
             return self._import(context, job)
         finally:
             job.cleanup()
+
+    def _import_sequence(self, context, job):
+        """The frames written by a sequence run, as sequence objects (and the hidden-feature
+        sequence beside them), placed like the Volume and timed like it."""
+        seq = self._sequence
+        written = frames.parse_pattern(job.mesh_path).scan()
+        if not written.frames:
+            self.report({"ERROR"}, f"isouq finished but wrote no frame ({job.mesh_path})")
+            return {"CANCELLED"}
+        summary = job.summary_path if os.path.isfile(job.summary_path) else None
+        created = []
+        try:
+            obj = sequence.import_sequence(context, job.mesh_path, job.name, "MESH", summary,
+                                           seq["mode"], seq["offset"])
+            created.append(obj)
+            if job.hidden_path and frames.parse_pattern(job.hidden_path).scan().frames:
+                hidden = sequence.import_sequence(context, job.hidden_path, job.name + "_hidden",
+                                                  "HIDDEN", summary, seq["mode"], seq["offset"])
+                created.append(hidden)
+                obj.isouq.partner, hidden.isouq.partner = hidden, obj
+        except _EXPECTED as e:
+            for o in created:
+                me = o.data
+                bpy.data.objects.remove(o)
+                bpy.data.meshes.remove(me)
+            self.report({"ERROR"}, f"isouq output unreadable: {e}")
+            return {"CANCELLED"}
+        for o in created:
+            if self._volume is not None:
+                o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
+        _make_active(context, obj)
+        self.report({"INFO"}, f"{obj.name}: {len(written.frames)} frames in "
+                              f"{job.output_dir}")
+        return {"FINISHED"}
 
     def _import(self, context, job):
         name = pipeline.input_name(job.request.input)
@@ -132,7 +250,7 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             for o in created:
                 o.isouq.source = job.request.input
                 if self._volume is not None:
-                    o.matrix_world = self._volume.matrix_world
+                    o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
         except _EXPECTED as e:
             for o in created:
                 me = o.data
@@ -178,8 +296,10 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             fraction = self._job.progress()
             if fraction is not None:
                 wm.progress_update(int(100 * fraction))
+            done = self._job.frames_done() if isinstance(self._job, pipeline.SequenceJob) else None
             context.workspace.status_text_set(
                 f"isouq: meshing {os.path.basename(self._job.request.input)}"
+                + (f" frame {done[0] + 1} of {done[1]}" if done and done[0] < done[1] else "")
                 + (f" {100 * fraction:.0f}%" if fraction is not None else "") + " (Esc cancels)")
             return {"RUNNING_MODAL"}
         wm.event_timer_remove(self._timer)
@@ -333,11 +453,54 @@ class ISOUQ_OT_open_plot(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def active_grid(data, name=""):
+    """The Volume data's grid `name`, else its active grid (grids loaded on demand), or None
+    when the file cannot be read. (Blender 3.4's VolumeGrids has active_index, not active.)"""
+    grids = data.grids
+    if not (grids.is_loaded or grids.load()) or not len(grids):
+        return None
+    found = next((g for g in grids if g.name == name), None) if name else None
+    return found or grids[min(max(grids.active_index, 0), len(grids) - 1)]
+
+
+def volume_mesh_matrix(volume, grid_name=""):
+    """Where a mesh of a Volume object's grid goes so that it lies on Blender's own drawing of
+    the Volume: Blender draws voxel (i, j, k) over the cell [i, i+1]^3 of index space (OpenVDB,
+    and so isouq, put the sample at the point (i, j, k)), and its Volume to Mesh modifier shifts
+    its meshes by half a voxel to match (measured: docs/sequences.md). isouq's meshes, in the
+    grid's world space, get the Volume's matrix and the same half-voxel shift."""
+    from mathutils import Matrix, Vector
+    grid = active_grid(volume.data, grid_name)
+    if grid is None:
+        return volume.matrix_world.copy()
+    index_to_object = grid.matrix_object
+    half = index_to_object.to_3x3() @ Vector((0.5, 0.5, 0.5))
+    return volume.matrix_world @ Matrix.Translation(half)
+
+
+def volume_sequence(volume):
+    """What `isouq mesh` needs for a Volume object whose file is a sequence (is_sequence): the
+    #### pattern of its filepath, the frames Blender plays (frame_offset + 1 to
+    frame_offset + frame_duration), and how scene frames map to them. Blender shows file frame
+    scene - frame_start + 1 + frame_offset, so the mesh sequence's offset (file = scene +
+    offset) is frame_offset + 1 - frame_start; its mode is the Volume's sequence_mode."""
+    data = volume.data
+    pattern = frames.pattern_of(bpy.path.abspath(data.filepath))
+    first, count = data.frame_offset + 1, data.frame_duration
+    if count <= 0:                      # Blender did not count the files: every frame on disk
+        seq = frames.detect(pattern)
+        first, count = seq.first, seq.last - seq.first + 1
+    return {"pattern": pattern, "frames": f"{first}-{first + count - 1}", "total": count,
+            "offset": data.frame_offset + 1 - data.frame_start, "mode": data.sequence_mode,
+            "name": volume.name}
+
+
 def menu_import(self, context):
     self.layout.operator(ISOUQ_OT_import_mesh.bl_idname, text="isouq mesh (.ply)")
+    self.layout.operator(ISOUQ_OT_import_sequence.bl_idname, text="isouq mesh sequence (.ply)")
 
 
-classes = (ISOUQ_OT_import_mesh, ISOUQ_OT_run_pipeline, ISOUQ_OT_apply_threshold,
+classes = (ISOUQ_OT_import_mesh, ISOUQ_OT_import_sequence, ISOUQ_OT_run_pipeline, ISOUQ_OT_apply_threshold,
            ISOUQ_OT_add_box, ISOUQ_OT_select_box, ISOUQ_OT_apply_methods,
            ISOUQ_OT_reset_positions, ISOUQ_OT_show_heatmap, ISOUQ_OT_plot_bars,
            ISOUQ_OT_compare_methods, ISOUQ_OT_show_hidden, ISOUQ_OT_combined_view,

@@ -1,5 +1,7 @@
 # Runs `isouq mesh` (SPEC §8) in a subprocess: finds the binary, builds the command line, polls
-# progress, cancels. No bpy, so the operator (modal timer) and the tests share it.
+# progress, cancels. No bpy, so the operator (modal timer) and the tests share it. A frame
+# sequence (SPEC §10: an input with ####) runs as one `isouq mesh` over every frame
+# (SequenceJob), writing its frames into a folder that stays.
 
 import json
 import os
@@ -8,10 +10,54 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 from dataclasses import dataclass, field
 
 ENV_BINARY = "ISOUQ_CLI"
 _PERCENT = re.compile(rb"(\d{1,3}(?:\.\d+)?)\s*%")
+_FRAMES_DONE = re.compile(rb"frame\s+(\d+)\s*(?:/|of)\s*(\d+)", re.IGNORECASE)
+_FRAME_WRITTEN = re.compile(rb"^frame -?\d+: (?:wrote|kept) ", re.MULTILINE)
+
+
+def spawn(cmd, stdout_path, stderr_path):
+    """Starts `cmd` with stdout to a file and stderr on a pseudo-terminal whose output a thread
+    copies to `stderr_path`: the CLI draws its progress bar only on a terminal. Without a pty
+    (not POSIX), stderr goes to the file directly. Returns (process, drain thread or None)."""
+    out = open(stdout_path, "wb")
+    try:
+        try:
+            import pty
+            master, slave = pty.openpty()
+        except (ImportError, OSError):
+            with open(stderr_path, "wb") as err:
+                return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=err), None
+        try:
+            process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=slave)
+        except BaseException:
+            os.close(master)
+            raise
+        finally:
+            os.close(slave)
+    finally:
+        out.close()
+    thread = threading.Thread(target=_drain, args=(master, stderr_path), daemon=True)
+    thread.start()
+    return process, thread
+
+
+def _drain(fd, path):
+    """Copies what the pty gives into `path` until the child closes it (EIO on Linux)."""
+    with open(path, "wb") as f:
+        while True:
+            try:
+                data = os.read(fd, 65536)
+            except OSError:
+                break
+            if not data:
+                break
+            f.write(data)
+            f.flush()
+    os.close(fd)
 _T_COLUMN = re.compile(r"^t_(\w+)$")
 _READ_ERRORS = (OSError, RuntimeError, KeyError, TypeError, ValueError, subprocess.TimeoutExpired)
 
@@ -163,6 +209,9 @@ class MeshRequest:
     grid: str = ""
     threads: int = 0
     resolution: int = 0
+    frames: str = ""                # sequences: --frames A-B[:STEP]; "" every frame on disk
+    resume: bool = False            # sequences: --resume
+    skip_missing: bool = False      # sequences: --skip-missing
 
     def command(self, binary, out, summary, hidden_out=None):
         cmd = [binary, "mesh", self.input, "-o", out]
@@ -181,6 +230,12 @@ class MeshRequest:
             cmd += ["--resolution", str(self.resolution)]
         if self.threads > 0:
             cmd += ["--threads", str(self.threads)]
+        if self.frames:
+            cmd += ["--frames", self.frames]
+        if self.resume:
+            cmd += ["--resume"]
+        if self.skip_missing:
+            cmd += ["--skip-missing"]
         return cmd
 
 
@@ -209,24 +264,42 @@ class Job:
     def _stderr_path(self):
         return os.path.join(self.workdir, "stderr.txt")
 
+    @property
+    def _stdout_path(self):
+        return os.path.join(self.workdir, "stdout.txt")
+
     def start(self):
         cmd = self.request.command(self.binary, self.mesh_path, self.summary_path, self.hidden_path)
-        with open(self._stderr_path, "wb") as err:
-            self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
-                                            stdout=subprocess.DEVNULL, stderr=err)
+        self.process, self._drainer = spawn(cmd, self._stdout_path, self._stderr_path)
         return self
 
     def poll(self):
-        return self.process.poll()
+        """None while running; the exit status once the process ended and its stderr is read."""
+        status = self.process.poll()
+        if status is not None:
+            self._join()
+        return status
 
     def wait(self, timeout=None):
-        return self.process.wait(timeout)
+        status = self.process.wait(timeout)
+        self._join()
+        return status
+
+    def _join(self):
+        drain = getattr(self, "_drainer", None)
+        if drain is not None:
+            drain.join(5.0)
 
     def progress(self):
         """Last percentage the CLI's progress bar printed, in [0, 1], or None."""
         tail = self._stderr_tail(4096)
         found = _PERCENT.findall(tail)
         return min(float(found[-1]) / 100.0, 1.0) if found else None
+
+    def frames_done(self):
+        """(frames finished, frames in the run) from the CLI's "frame i/N" progress, or None."""
+        found = _FRAMES_DONE.findall(self._stderr_tail(4096))
+        return (int(found[-1][0]), int(found[-1][1])) if found else None
 
     def cancel(self, grace=3.0):
         """SIGINT (the CLI exits 130 and leaves no output), then SIGKILL after `grace` s."""
@@ -238,6 +311,8 @@ class Job:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+        if self.process:
+            self._join()
 
     def error_message(self):
         """The CLI's `isouq: error:` line, else the last stderr line, else the status."""
@@ -261,3 +336,67 @@ class Job:
 
     def cleanup(self):
         shutil.rmtree(self.workdir, ignore_errors=True)
+
+
+def _last_segment(data):
+    """The last progress redraw: the text after the last carriage return or newline."""
+    return re.split(rb"[\r\n]", data.rstrip(b"\r\n"))[-1] if data else b""
+
+
+@dataclass
+class SequenceJob(Job):
+    """`isouq mesh 'in.####.vdb' -o 'DIR/NAME.####.ply' --summary DIR/NAME.json` over a frame
+    sequence. The frames stay in `output_dir` (they are loaded frame by frame later); only the
+    temporary folder holding stderr is removed. `total` is the number of frames expected, for
+    progress before the CLI first says "frame i/N"."""
+    output_dir: str = ""
+    name: str = "sequence"
+    total: int = 0
+    _best: float = 0.0
+
+    @property
+    def mesh_path(self):
+        return os.path.join(self.output_dir, f"{self.name}.####.ply")
+
+    @property
+    def hidden_path(self):
+        return (os.path.join(self.output_dir, f"{self.name}_hidden.####.ply")
+                if self.request.hidden_features else None)
+
+    @property
+    def summary_path(self):
+        return os.path.join(self.output_dir, f"{self.name}.json")
+
+    def start(self):
+        os.makedirs(self.output_dir, exist_ok=True)
+        return super().start()
+
+    def frames_done(self):
+        """(frames finished, frames in the run): from the progress bar's "frame i/N" prefix,
+        else from the "frame F: wrote ..." lines the CLI prints (and flushes) on stdout after
+        each frame, over `total`."""
+        found = super().frames_done()
+        written = self._frames_written()
+        if found is None:
+            return (written, self.total) if written or self.total else None
+        return (max(found[0], written), found[1])
+
+    def _frames_written(self):
+        try:
+            with open(self._stdout_path, "rb") as f:
+                return len(_FRAME_WRITTEN.findall(f.read()))
+        except OSError:
+            return 0
+
+    def progress(self):
+        """Fraction of the run: (frames finished + the current frame's last percentage) over the
+        frames, never going back (a frame's stages each count from 0 to 100%)."""
+        done = self.frames_done()
+        if done is None or done[1] <= 0:
+            return None
+        finished, total = done
+        line = _last_segment(self._stderr_tail(4096))
+        percent = _PERCENT.findall(line) if finished < total else []
+        fraction = (finished + (float(percent[-1]) / 100.0 if percent else 0.0)) / total
+        self._best = max(self._best, min(fraction, 1.0))
+        return self._best

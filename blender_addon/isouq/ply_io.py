@@ -1,8 +1,8 @@
 # isouq PLY reader (SPEC §6): numpy only, no bpy, so it runs and is tested outside Blender too.
 #
 # Blender's own PLY importer drops custom properties; this reader keeps every vertex and face
-# property as a named numpy column with the file's dtype. Binary PLY only (isouq writes binary
-# little-endian; big-endian is accepted too).
+# property as a named numpy column with the file's dtype. Binary little- and big-endian, and
+# ascii (isouq writes binary little-endian, or ascii with --ply-format ascii).
 
 import os
 from dataclasses import dataclass, field
@@ -99,8 +99,8 @@ def parse_header(data):
             elements[-1].properties.append(_parse_property(words, line))
         else:
             raise PlyError(f"unknown PLY header line: {line!r}")
-    if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise PlyError(f"PLY format {fmt!r} is not supported: isouq writes binary_little_endian")
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise PlyError(f"PLY format {fmt!r} is not supported: isouq writes binary_little_endian or ascii")
     return fmt, elements, comments, newline + 1
 
 
@@ -172,6 +172,58 @@ def _walk_faces(data, offset, n, count_t, index_t, scalar_t):
     return (starts, totals, np.concatenate(corners).astype(np.int32), extra), offset
 
 
+def _ascii_columns(words, element, columns):
+    """(count, len(columns)) array of byte words -> structured array with the properties' dtypes."""
+    rows = np.zeros(element.count, dtype=np.dtype([(p.name, p.dtype) for p in columns]))
+    for c, p in enumerate(columns):
+        text = words[:, c]
+        try:
+            if np.dtype(p.dtype).kind == "f":
+                rows[p.name] = text.astype(np.float64)
+            else:
+                values = text.astype(np.int64)
+                info = np.iinfo(p.dtype)
+                if values.size and (values.min() < info.min or values.max() > info.max):
+                    raise PlyError(f"PLY value of '{p.name}' out of range for {p.dtype}")
+                rows[p.name] = values
+        except ValueError:
+            raise PlyError(f"PLY ascii value of '{p.name}' is not a number") from None
+    return rows
+
+
+def _ascii_words(tokens, pos, n, element):
+    if pos + n > len(tokens):
+        raise PlyError(f"PLY file is truncated inside element '{element.name}'")
+    return np.array(tokens[pos:pos + n], dtype=bytes)
+
+
+def _read_ascii_element(tokens, pos, element):
+    """A scalar element from whitespace-separated words: (rows, next position)."""
+    width = len(element.properties)
+    words = _ascii_words(tokens, pos, element.count * width, element).reshape(element.count, width)
+    return _ascii_columns(words, element, element.properties), pos + element.count * width
+
+
+def _read_ascii_faces(tokens, pos, element):
+    """Faces from words: the list `vertex_indices` first, then scalars; triangles only."""
+    lists = [p for p in element.properties if p.count_dtype]
+    if len(lists) != 1 or element.properties[0] is not lists[0]:
+        raise PlyError("face element must start with its only list property vertex_indices")
+    scalars = element.properties[1:]
+    width = 4 + len(scalars)
+    words = _ascii_words(tokens, pos, element.count * width, element).reshape(element.count, width)
+    if element.count and np.any(words[:, 0] != b"3"):
+        raise PlyError("PLY ascii faces must be triangles")
+    try:
+        corners = words[:, 1:4].astype(np.int64).ravel()
+    except ValueError:
+        raise PlyError("PLY ascii face index is not a number") from None
+    n = element.count
+    extra = _ascii_columns(words[:, 4:], element, scalars) if scalars else None
+    return (np.arange(0, 3 * n, 3, dtype=np.int32), np.full(n, 3, np.int32),
+            corners.astype(np.int32), extra), pos + n * width
+
+
 def _parse_isouq_comments(comments):
     """`comment isouq index_to_world m00 .. m33`, `comment isouq isovalue K`,
     `comment isouq method NAME` (lead's header contract)."""
@@ -201,14 +253,20 @@ def read_ply_bytes(data, require_isouq=True):
     edge provenance (e.g. another program's PLY), so the caller never builds a half-isouq object."""
     fmt, elements, comments, offset = parse_header(data)
     order = "<" if fmt == "binary_little_endian" else ">"
+    # ascii: `offset` counts words of the body instead of bytes.
+    tokens = None
+    if fmt == "ascii":
+        tokens, offset = data[offset:].split(), 0
     vertex_rows, faces = None, None
     for element in elements:
         if element.name == "face":
-            faces, offset = _read_face_element(data, offset, element, order)
+            faces, offset = (_read_ascii_faces(tokens, offset, element) if tokens is not None
+                             else _read_face_element(data, offset, element, order))
         elif any(p.count_dtype for p in element.properties):
             raise PlyError(f"element '{element.name}' with list properties is not supported")
         else:
-            rows, offset = _read_scalar_element(data, offset, element, order)
+            rows, offset = (_read_ascii_element(tokens, offset, element) if tokens is not None
+                            else _read_scalar_element(data, offset, element, order))
             if element.name == "vertex":
                 vertex_rows = rows
     if vertex_rows is None:

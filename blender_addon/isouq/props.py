@@ -76,6 +76,30 @@ def _update_heat_range(self, context):
     materials.set_heat_range(self.heat_min, self.heat_max)
 
 
+SEQUENCE_MODES = [
+    ("CLIP", "Clip", "Before the first and after the last frame the mesh is empty"),
+    ("EXTEND", "Extend", "Before the first and after the last frame hold the nearest one"),
+    ("REPEAT", "Repeat", "Loop the sequence"),
+    ("PING_PONG", "Ping-Pong", "Loop the sequence forward and back")]
+NO_FRAME = -(2 ** 31) + 1       # Object.isouq.sequence_frame when the mesh shows no frame
+
+
+def _update_sequence(self, context):
+    from . import sequence
+    obj = self.id_data
+    if isinstance(obj, bpy.types.Object) and self.sequence:
+        sequence.update_object(context.scene, obj, force=True)
+
+
+def _update_pattern(self, context):
+    """A new pattern (or the same one again): its frames are looked up on disk again."""
+    from . import sequence
+    obj = self.id_data
+    if isinstance(obj, bpy.types.Object) and self.sequence:
+        sequence.rescan(obj)
+        sequence.update_object(context.scene, obj, force=True)
+
+
 class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     measure: EnumProperty(name="Measure", items=measure_items, default=number("err_est"))
     # C1 threshold
@@ -102,6 +126,10 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     # C4 heat map
     heat_min: FloatProperty(name="Min", default=0.0, precision=6, update=_update_heat_range)
     heat_max: FloatProperty(name="Max", default=1.0, precision=6, update=_update_heat_range)
+    heat_range_scope: EnumProperty(name="Range over", items=[
+        ("SEQUENCE", "Sequence", "Heat Map takes the range over every frame of a sequence, so "
+                                 "frames are comparable"),
+        ("FRAME", "Frame", "Heat Map takes the range of the frame shown")], default="SEQUENCE")
     # C6 comparison
     compare_method: EnumProperty(name="Compare with", items=method_items,
                                  default=number("linear"))
@@ -119,6 +147,20 @@ class ISOUQ_SceneSettings(bpy.types.PropertyGroup):
     hidden_features: BoolProperty(name="Hidden features", default=False)
     subdivisions: IntProperty(name="Subdivisions", default=4, min=2, max=16)
     grid: StringProperty(name="Grid", description="Grid name (--grid); empty: first float grid")
+    whole_sequence: BoolProperty(
+        name="Whole sequence", default=True,
+        description="A Volume that is a sequence: mesh every frame and import the mesh "
+                    "sequence (else the current frame only)")
+    sequence_dir: StringProperty(
+        name="Sequence folder", subtype="DIR_PATH", default="//isouq_sequences/",
+        description="Where the frames of a Volume sequence are written (NAME.####.ply and "
+                    "NAME.json); '//' is the .blend's folder (unsaved: the temporary folder)")
+    resume: BoolProperty(name="Resume", default=False,
+                         description="Keep frames already written in the sequence folder "
+                                     "(--resume)")
+    skip_missing: BoolProperty(name="Skip missing", default=False,
+                               description="Mesh the frames that exist when some of the "
+                                           "range are missing (--skip-missing)")
     # render
     render_engine: EnumProperty(name="Engine", items=[
         ("BLENDER_EEVEE", "Eevee", ""), ("CYCLES", "Cycles (CPU)", "")], default="BLENDER_EEVEE")
@@ -137,6 +179,19 @@ class ISOUQ_ObjectSettings(bpy.types.PropertyGroup):
     method_shown: StringProperty(name="Shown method", default="")
     partner: PointerProperty(name="Partner", type=bpy.types.Object,
                              description="The standard / hidden-feature mesh of the same run")
+    # a mesh sequence (sequence.py): the mesh follows the scene frame
+    sequence: StringProperty(name="Sequence", subtype="FILE_PATH", update=_update_pattern,
+                             description="The frames' files, '#' for the frame number; "
+                                         "empty: not a sequence. Setting it (again) looks the "
+                                         "frames up on disk")
+    sequence_offset: IntProperty(name="Frame offset", default=0, update=_update_sequence,
+                                 description="File frame = scene frame + offset")
+    sequence_mode: EnumProperty(name="Outside the frames", items=SEQUENCE_MODES,
+                                default="EXTEND", update=_update_sequence)
+    sequence_summary: StringProperty(name="Sequence summary", subtype="FILE_PATH",
+                                     description="The sequence summary JSON (per-frame C7)")
+    sequence_frame: IntProperty(name="File frame", default=NO_FRAME,
+                                description="The file frame the mesh holds")
 
 
 class ISOUQ_AddonPreferences(bpy.types.AddonPreferences):

@@ -60,10 +60,25 @@ class VIEW3D_PT_isouq_overlays(_Panel, bpy.types.Panel):
             col.label(text=f"{obj.name}: {len(obj.data.vertices)} vertices", icon="MESH_DATA")
             if obj.isouq.method_shown:
                 col.label(text=f"showing: {obj.isouq.method_shown}")
+            if obj.isouq.sequence:
+                _draw_sequence(col, obj)
         else:
             col.label(text="Select an isouq mesh", icon="INFO")
-        col.operator("isouq.import_mesh", icon="IMPORT")
+        row = col.row(align=True)
+        row.operator("isouq.import_mesh", icon="IMPORT", text="Import")
+        row.operator("isouq.import_sequence", icon="SEQUENCE", text="Sequence")
         col.prop(context.scene.isouq, "measure")
+
+
+def _draw_sequence(col, obj):
+    from . import props
+    s = obj.isouq
+    box = col.box()
+    frame = s.sequence_frame
+    box.label(text=f"sequence frame {frame}" if frame != props.NO_FRAME else
+              "sequence: no frame here", icon="SEQUENCE")
+    box.prop(s, "sequence_mode", text="Outside")
+    box.prop(s, "sequence_offset")
 
 
 class VIEW3D_PT_isouq_pipeline(_Panel, bpy.types.Panel):
@@ -77,6 +92,13 @@ class VIEW3D_PT_isouq_pipeline(_Panel, bpy.types.Panel):
         if pipeline.is_generated(s.input_path):
             col.prop(s, "resolution")
         col.prop(s, "volume")
+        if s.volume is not None and s.volume.type == "VOLUME" and s.volume.data.is_sequence:
+            col.prop(s, "whole_sequence")
+            if s.whole_sequence:
+                col.prop(s, "sequence_dir")
+                row = col.row()
+                row.prop(s, "resume")
+                row.prop(s, "skip_missing")
         col.prop(s, "grid")
         row = col.row(align=True)
         row.prop(s, "use_isovalue", text="")
@@ -143,6 +165,9 @@ class VIEW3D_PT_isouq_heatmap(_Panel, bpy.types.Panel):
         row = col.row(align=True)
         row.prop(s, "heat_min")
         row.prop(s, "heat_max")
+        obj = context.active_object
+        if obj is not None and obj.type == "MESH" and obj.isouq.sequence:
+            col.prop(s, "heat_range_scope", expand=True)
         col.operator("isouq.show_heatmap", icon="COLOR")
         _draw_plot(col, "legend", scale=3.0)
 

@@ -19,20 +19,32 @@ class ViewError(Exception):
 
 # --- import --------------------------------------------------------------------------------
 
-def import_ply(context, path, name=None, role="MESH"):
-    """Reads an isouq PLY and links a new object to the active collection.
-    Nothing is created when reading or checking fails (ply_io.PlyError / ValueError)."""
-    mesh = ply_io.read_ply(path)
-    name = name or os.path.splitext(os.path.basename(path))[0]
+def prepare_mesh(context, mesh):
+    """The vocabulary for `mesh` (an IsouqMesh); fills in `mesh.method` from the positions when
+    the header does not say (the t column that reproduces x, y, z)."""
     columns = mesh.vertex_attributes
     vocabulary = props.vocabulary(context, {n: c.dtype.str for n, c in columns.items()})
     methods = {m: c for m, c in vocabulary.method_columns().items() if c in columns}
-    if not mesh.method and methods and analysis.has_edges(columns):
+    if not mesh.method and methods and analysis.has_edges(columns) and mesh.vertex_count:
         matrix = mesh.index_to_world
         if matrix is None:
             matrix = analysis.fit_index_to_world(mesh.positions, columns, next(iter(methods.values())))
         if matrix is not None:
             mesh.method = analysis.guess_primary_method(mesh.positions, columns, matrix, methods)
+    return vocabulary
+
+
+def first_measure(vocabulary, columns):
+    return next((m for m in vocabulary.measures() if m in columns), None)
+
+
+def import_ply(context, path, name=None, role="MESH"):
+    """Reads an isouq PLY and links a new object to the active collection.
+    Nothing is created when reading or checking fails (ply_io.PlyError / ValueError)."""
+    mesh = ply_io.read_ply(path)
+    name = name or os.path.splitext(os.path.basename(path))[0]
+    vocabulary = prepare_mesh(context, mesh)
+    columns = mesh.vertex_attributes
     me = attributes.build_mesh(name, mesh)
     attributes.remember_primary_positions(me)
     obj = bpy.data.objects.new(name, me)
@@ -40,7 +52,7 @@ def import_ply(context, path, name=None, role="MESH"):
     obj.isouq.role = role
     obj.isouq.source = path
     obj.isouq.method_shown = mesh.method or ""
-    measure = next((m for m in vocabulary.measures() if m in columns), None)
+    measure = first_measure(vocabulary, columns)
     if measure:
         lo, hi = value_range(columns[measure])
         materials.assign(obj, materials.heatmap_material(measure, lo, hi))
@@ -117,6 +129,7 @@ def apply_threshold(context, obj):
     materials.assign(obj, materials.threshold_material(s.measure, threshold, s.colour_below,
                                                        s.colour_above))
     store_selection(obj, mask)
+    obj["isouq_view_selection"] = "THRESHOLD"
     path = plots.cdf_plot(plot_path("cdf"), values, threshold, s.measure)
     return int(mask.sum()), path
 
@@ -150,6 +163,7 @@ def select_box(context, obj):
     if not mask.any():
         raise ViewError("the box contains no vertex: move or scale it over the surface")
     store_selection(obj, mask)
+    obj["isouq_view_selection"] = "BOX"
     return int(mask.sum())
 
 
@@ -183,35 +197,77 @@ def _method_inputs(context, obj, *methods):
     return attributes.stored_positions(me), attrs, matrix, [known[m] for m in methods]
 
 
-def apply_methods(context, obj):
+def apply_methods(context, obj, allow_empty=False):
     """C3: inside method where selected, outside method elsewhere, at once (no rerun).
-    Returns the number of selected vertices."""
+    Returns the number of selected vertices. An empty selection is an error unless
+    `allow_empty` (a sequence frame where nothing is above the threshold: all outside)."""
     s = context.scene.isouq
     positions, attrs, matrix, (inside, outside) = _method_inputs(context, obj, s.method_inside,
                                                                  s.method_outside)
     mask = selection_mask(context, obj)
-    if s.method_inside != s.method_outside and not mask.any():
+    if s.method_inside != s.method_outside and not mask.any() and not allow_empty:
         raise ViewError("the selection is empty: lower the threshold or move the box")
     attributes.set_positions(obj.data, analysis.mixed_positions(
         positions, attrs, matrix, mask, inside, outside))
     store_selection(obj, mask)
     obj.isouq.method_shown = (s.method_inside if s.method_inside == s.method_outside
                               else f"{s.method_inside} inside, {s.method_outside} outside")
+    obj["isouq_view_methods"] = True
+    obj["isouq_view_selection"] = s.selection
     return int(mask.sum())
 
 
 def reset_positions(obj):
     attributes.set_positions(obj.data, attributes.stored_positions(obj.data))
     obj.isouq.method_shown = obj.data.get("isouq_method", "")
+    if "isouq_view_methods" in obj:
+        del obj["isouq_view_methods"]
+
+
+def reapply(context, obj):
+    """After a new frame of a sequence is loaded into `obj` (sequence.py): the object's views on
+    the new frame. A comparison copy (C6) shows its method; after C3 the scene's inside and
+    outside methods are applied again (nothing selected: all outside); a C1/C2 selection is
+    taken again with the scene's threshold value or box. Materials read attributes, so the heat
+    map (C4) and the threshold colours (C1) follow by themselves."""
+    if obj.isouq.role == "COMPARE":
+        if obj.isouq.method_shown and len(obj.data.vertices):
+            positions, attrs, matrix, (column,) = _method_inputs(context, obj,
+                                                                 obj.isouq.method_shown)
+            attributes.set_positions(obj.data, analysis.method_positions(positions, attrs,
+                                                                         matrix, column))
+        return
+    if not len(obj.data.vertices):
+        return
+    if obj.get("isouq_view_methods"):
+        apply_methods(context, obj, allow_empty=True)
+        return
+    kind = obj.get("isouq_view_selection")
+    s = context.scene.isouq
+    if kind == "THRESHOLD" and s.measure in obj.data.attributes:
+        store_selection(obj, analysis.above(measure_values(obj, s.measure), s.threshold_value))
+    elif kind == "BOX" and s.box is not None:
+        store_selection(obj, box_selection(context, obj))
 
 
 # --- C4 heat map, C5 bars ------------------------------------------------------------------
 
+def heat_range(context, obj, measure):
+    """The heat-map range of `measure` on `obj`: over every frame for a sequence object (unless
+    the scene's range scope is FRAME), else the values shown."""
+    if obj.isouq.sequence and context.scene.isouq.heat_range_scope == "SEQUENCE":
+        from . import sequence
+        found = sequence.measure_range(obj, measure)
+        if found is not None:
+            return found
+    return value_range(measure_values(obj, measure))
+
+
 def apply_heatmap(context, obj, reset_range=True):
     s = context.scene.isouq
-    values = measure_values(obj, s.measure)
+    measure_values(obj, s.measure)
     if reset_range:
-        s.heat_min, s.heat_max = value_range(values)
+        s.heat_min, s.heat_max = heat_range(context, obj, s.measure)
     materials.assign(obj, materials.heatmap_material(s.measure, s.heat_min, s.heat_max))
     return plots.legend_plot(plot_path("legend"), s.heat_min, s.heat_max, s.measure,
                              materials.HEAT_COLORMAP)
@@ -249,6 +305,9 @@ def compare_methods(context, obj):
     copy.location = obj.location + type(obj.location)((1.2 * width, 0, 0))
     copy.isouq.role = "COMPARE"
     copy.isouq.method_shown = s.compare_method
+    for key in ("isouq_view_methods", "isouq_view_selection"):
+        if key in copy:
+            del copy[key]
     context.collection.objects.link(copy)
     return copy
 
@@ -277,8 +336,7 @@ def combined_view(context, obj):
     """Heat map of the measure on the hidden-feature mesh, green where refined."""
     standard, hidden = _hidden_pair(obj)
     s = context.scene.isouq
-    values = measure_values(hidden, s.measure)
-    lo, hi = value_range(values)
+    lo, hi = heat_range(context, hidden, s.measure)
     s.heat_min, s.heat_max = lo, hi
     materials.assign(hidden, materials.combined_material(s.measure, lo, hi))
     standard.hide_render = standard.hide_viewport = True

@@ -39,7 +39,9 @@ if args == ["nodes", "--json"]:
         "err_true_weno_paper", "dist_true", "dist_true_linear", "dist_true_cubic",
         "dist_true_weno", "dist_true_weno_paper", "dist_metro_linear")]
     columns += [column(name, "uint8", name) for name in ("hidden", "above", "in_box")]
-    columns += [column("compare_dist", "float32", "distance of two crossings", True),
+    columns += [column("compare_dist", "float32", "distance of two crossings", True)]
+    columns += [column(name, "uint8", f"colour {name}") for name in ("red", "green", "blue")]
+    columns += [column("quality", "float32", "the coloured measure"),
                 column("vertex_indices", "list", "triangle corners", element="face"),
                 column("hidden", "uint8", "refined face", element="face")]
     mesh = {"type": "mesh", "parms": [{"token": "method", "default": "weno",
@@ -53,6 +55,60 @@ out = opt("-o")
 if mode == "fail":
     sys.stderr.write("Meshing  10%\nisouq: error: grid 'density' is not a float grid\n")
     sys.exit(2)
+source = os.environ.get("FAKE_ISOUQ_PLY", "")
+
+
+def placeholder(path):
+    import re
+    found = list(re.finditer(r"#+", os.path.basename(path)))
+    if not found:
+        return None
+    m = found[-1]
+    head = os.path.dirname(path)
+    name = os.path.basename(path)
+    return lambda f: os.path.join(head, name[:m.start()] + f"{f:0{len(m.group())}d}" + name[m.end():])
+
+
+if placeholder(args[1]):
+    read, write = placeholder(args[1]), placeholder(out)
+    hidden = placeholder(opt("--hidden-out")) if opt("--hidden-out") else None
+    if opt("--frames"):
+        span, _, step = opt("--frames").partition(":")
+        a, _, b = span.partition("-")
+        frames = list(range(int(a), int(b or a) + 1, int(step or 1)))
+    else:
+        on_disk = sorted(f for f in range(0, 10000) if os.path.isfile(read(f)))
+        frames = list(range(on_disk[0], on_disk[-1] + 1))
+    missing = [f for f in frames if not os.path.isfile(read(f))]
+    if missing and "--skip-missing" not in args:
+        sys.stderr.write(f"isouq: error: '{args[1]}': frames {missing} missing\n")
+        sys.exit(2)
+    frames = [f for f in frames if f not in missing]
+    signal.signal(signal.SIGINT, lambda *_: sys.exit(130))
+    entries = []
+    for i, f in enumerate(frames):
+        for pct in (0, 50, 100):
+            prefix = f"frame {i}/{len(frames)}, ETA 1 s | " if i else ""
+            sys.stderr.write(f"\r{prefix}Meshing    [{'#' * (pct // 10):10s}] {pct:3d}%   0.1s")
+            sys.stderr.flush()
+            if mode == "sleep":
+                time.sleep(float(os.environ.get("FAKE_ISOUQ_FRAME_SECONDS", "0.3")) / 3)
+        if not ("--resume" in args and os.path.isfile(write(f))):
+            shutil.copy(source, write(f) + ".tmp")
+            os.replace(write(f) + ".tmp", write(f))
+        if hidden:
+            shutil.copy(os.environ.get("FAKE_ISOUQ_HIDDEN_PLY", source), hidden(f))
+        print(f"frame {f}: wrote {write(f)}: 1 vertices, 2 triangles, 1 components", flush=True)
+        entries.append({"frame": f, "file": read(f), "output": write(f), "vertices": 1,
+                        "triangles": 2, "components": 1, "boundary_edges": 0, "empty": False})
+    sys.stderr.write(f"\rframe {len(frames)}/{len(frames)}, ETA 0 s | done\n")
+    if opt("--summary"):
+        with open(opt("--summary"), "w") as f:
+            json.dump({"frames": entries, "totals": {"frames": len(frames)},
+                       "isovalue": float(opt("--isovalue") or 0), "method": opt("--method"),
+                       "sequence": {"input": args[1], "output": out, "first": frames[0],
+                                    "last": frames[-1], "step": 1}}, f)
+    sys.exit(0)
 if mode == "sleep":
     signal.signal(signal.SIGINT, lambda *_: sys.exit(130))
     for pct in range(0, 100, 5):
@@ -61,7 +117,6 @@ if mode == "sleep":
         time.sleep(0.2)
     time.sleep(60)
     sys.exit(0)
-source = os.environ["FAKE_ISOUQ_PLY"]
 if mode == "garbage":
     data = open(source, "rb").read()
     open(out, "wb").write(data[: len(data) // 2])

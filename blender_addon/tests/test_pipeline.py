@@ -71,9 +71,12 @@ def test_volume_object_input_uses_its_file_and_transform(fake):
     assert bpy.ops.isouq.run_pipeline() == {"FINISHED"}
     (argv,) = logged(fake)
     assert argv[1] == SPHERE_VDB
-    if volume.data.grids.is_loaded:                   # Blender built with OpenVDB
-        assert argv[argv.index("--grid") + 1] == "ls_sphere"
-    assert tuple(bpy.data.objects["sphere"].location) == (1.0, 2.0, 3.0)
+    assert volume.data.grids.is_loaded                # Blender built with OpenVDB
+    assert argv[argv.index("--grid") + 1] == "ls_sphere"
+    # the Volume's transform and half a voxel (0.05 / 2): Blender draws voxel i over [i, i+1]
+    # and its Volume to Mesh shifts by as much (operators.volume_mesh_matrix)
+    location = tuple(bpy.data.objects["sphere"].location)
+    assert location == pytest.approx((1.025, 2.025, 3.025), abs=1e-6)
 
 
 @pytest.mark.parametrize("mode,message", [

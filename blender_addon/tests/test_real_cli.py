@@ -78,7 +78,7 @@ def assert_mesh_equals_file(me, path):
     for name, values in point_data.items():
         attr, got = blender_attribute(me, name)
         assert attr.domain == "POINT", name
-        # meshio reads PLY uchar as int8; isouq's uchar columns (edge_axis, order) are < 128.
+        # isouq writes its uint8 columns as `uint8`, which meshio reads as uint8 (docs/ply-format.md).
         # NaN marks a method that does not apply (e.g. err_est_cubic at low order)
         assert np.array_equal(got, values.astype(got.dtype), equal_nan=got.dtype.kind == "f"), name
     comments = header_comments(path)
@@ -208,13 +208,13 @@ def test_methods_on_a_real_mesh_equal_the_clis_own_runs(tangle, inside, outside)
 
 def face_hidden_column(path):
     """The face `hidden` column read with a fixed record layout (isouq's triangles: uchar 3,
-    three int32, uchar hidden), independent of the add-on's reader."""
+    three int32, uint8 hidden), independent of the add-on's reader."""
     data = open(path, "rb").read()
     end = data.index(b"end_header\n") + len(b"end_header\n")
     header = data[:end].decode("ascii").split("\n")
     counts = {line.split()[1]: int(line.split()[2]) for line in header
               if line.startswith("element ")}
-    assert header[-4:-2] == ["property list uchar int vertex_indices", "property uchar hidden"]
+    assert header[-4:-2] == ["property list uchar int vertex_indices", "property uint8 hidden"]
     vertex_bytes = len(data) - end - counts["face"] * 14
     faces = np.frombuffer(data, [("n", "u1"), ("v", "<i4", 3), ("hidden", "u1")],
                           counts["face"], end + vertex_bytes)

@@ -60,3 +60,21 @@ def test_panels_draw_with_a_mesh_and_plots(sphere_ply):
     assert "cdf" in ui._previews
     assert ("operator", "isouq.open_plot") in log
     assert any(kind == "label" and text == "vertices" for kind, text in log)   # C7 rows
+
+
+def test_panels_draw_a_sequence_and_a_volume_sequence(sphere_ply, tmp_path):
+    import shutil
+    for k in (1, 2):
+        shutil.copy(sphere_ply[0], tmp_path / f"s.{k:04d}.ply")
+    assert bpy.ops.isouq.import_sequence(filepath=str(tmp_path / "s.0001.ply")) == {"FINISHED"}
+    vol = bpy.data.volumes.new("v")
+    vol.is_sequence = True
+    volume = bpy.data.objects.new("v", vol)
+    bpy.context.collection.objects.link(volume)
+    bpy.context.scene.isouq.volume = volume
+    log = draw_all(bpy.context)
+    assert ("operator", "isouq.import_sequence") in log
+    assert ("label", "sequence frame 1") in log
+    for name in ("sequence_mode", "sequence_offset", "heat_range_scope", "whole_sequence",
+                 "sequence_dir", "resume", "skip_missing"):
+        assert ("prop", name) in log, name

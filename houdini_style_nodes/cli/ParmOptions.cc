@@ -31,12 +31,13 @@ CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
         return cmd.add_flag_function(withNegation,
             [&values, spec](std::int64_t count) { store(values, spec, count > 0); }, spec.tooltip);
     }
+    // CLI11 reads "" as 0: a number option needs a number.
     case ParmType::Int:
         return cmd.add_option_function<long long>(names, [&values, spec](const long long& v) { store(values, spec, v); },
-            spec.tooltip);
+            spec.tooltip)->check(CLI::Number);
     case ParmType::Float:
         return cmd.add_option_function<double>(names, [&values, spec](const double& v) { store(values, spec, v); },
-            spec.tooltip);
+            spec.tooltip)->check(CLI::Number);
     case ParmType::String:
     case ParmType::Path:
     case ParmType::Menu: {
@@ -50,12 +51,14 @@ CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
         return cmd.add_option_function<std::vector<double>>(
                       names, [&values, spec](const std::vector<double>& v) { store(values, spec, v); }, spec.tooltip)
             ->delimiter(',')
-            ->expected(spec.type == ParmType::Vec2 ? 2 : 3);
+            ->expected(spec.type == ParmType::Vec2 ? 2 : 3)
+            ->check(CLI::Number);
     case ParmType::Int3:
         return cmd.add_option_function<std::vector<long long>>(
                       names, [&values, spec](const std::vector<long long>& v) { store(values, spec, v); }, spec.tooltip)
             ->delimiter(',')
-            ->expected(3);
+            ->expected(3)
+            ->check(CLI::Number);
     }
     throw std::logic_error("unknown parameter type");
 }

@@ -33,13 +33,17 @@ ProgressInterrupter::ProgressInterrupter(bool show) : mShow(show)
     for (int signal : kSignals) std::signal(signal, onSignal);
 }
 
-ProgressInterrupter::~ProgressInterrupter()
-{
-    clearLine();
-    for (int signal : kSignals) std::signal(signal, SIG_DFL);
-}
+// The handlers stay installed: a second signal while the run unwinds must still clean up and
+// exit 128 + n rather than take the default action.
+ProgressInterrupter::~ProgressInterrupter() { clearLine(); }
 
 bool ProgressInterrupter::interrupted() { return sInterrupted.load(); }
+
+void ProgressInterrupter::setPrefix(std::string prefix)
+{
+    std::lock_guard<std::mutex> lock(sDrawMutex);
+    mPrefix = std::move(prefix);
+}
 
 int ProgressInterrupter::exitStatus() { return 128 + sSignal.load(); }
 
@@ -79,7 +83,7 @@ void ProgressInterrupter::draw(int percent)
     constexpr int kWidth = 30;
     const int filled = kWidth * std::max(0, std::min(percent, 100)) / 100;
     const double seconds = std::chrono::duration<double>(now - mStageStart).count();
-    std::fprintf(stderr, "\r%-10s [%.*s%*s] %3d%% %6.1fs", mStage.c_str(), filled,
+    std::fprintf(stderr, "\r%s%-10s [%.*s%*s] %3d%% %6.1fs", mPrefix.c_str(), mStage.c_str(), filled,
         "##############################", kWidth - filled, "", percent, seconds);
     std::fflush(stderr);
 }
@@ -87,7 +91,7 @@ void ProgressInterrupter::draw(int percent)
 void ProgressInterrupter::clearLine()
 {
     if (!mShow) return;
-    std::fprintf(stderr, "\r%*s\r", 60, "");
+    std::fprintf(stderr, "\r%*s\r", 60 + int(mPrefix.size()), "");
     std::fflush(stderr);
 }
 

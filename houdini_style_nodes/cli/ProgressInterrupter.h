@@ -21,6 +21,9 @@ public:
     void end() override;
     bool wasInterrupted(int percent = -1) override;
 
+    /// Text drawn before the stage, e.g. "frame 3/24, ETA 12 s | " (sequences).
+    void setPrefix(std::string prefix);
+
     /// True once a signal arrived (also outside any stage).
     static bool interrupted();
     /// The exit status for it: 128 + the signal (130 for Ctrl-C).
@@ -31,7 +34,7 @@ private:
     void clearLine();
 
     bool mShow;
-    std::string mStage;
+    std::string mStage, mPrefix;
     int mLastPercent = -2;
     std::chrono::steady_clock::time_point mStageStart, mLastDraw;
 };

@@ -1,6 +1,6 @@
 // isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report.
 // The options of `mesh` come from the parameter declarations of the read_volume, mesh,
-// write_ply and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
+// write_ply, color_map and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
 #include "ParmOptions.h"
 #include "ProgressInterrupter.h"
@@ -9,11 +9,13 @@
 #include <isouq/MeshIO.h>
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
+#include <isouq/nodes/Sequence.h>
 
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
 #include <tbb/global_control.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -37,6 +39,9 @@ Examples:
                                                           torus-paper, marschner-lobb, teardrop,
                                                           tubey, sphere
   isouq mesh "formula:x^2+y^2+z^2-0.5" --domain -1,1 --resolution 128 -o ball.ply
+  isouq mesh field:tangle -o tangle.vtp                  VTK XML PolyData (ParaView, VTK)
+  isouq mesh field:tangle -o tangle.ply --color-by err_est
+                                                          vertex colours any viewer shows
 
 Every vertex carries the edge it lies on (edge_i edge_j edge_k edge_axis) and where each method
 puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: a failed or
@@ -116,7 +121,8 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     const isouq::nodes::Graph graph = isouq::nodes::parseGraph(doc);
     if (!saveGraph.empty()) {
         for (const std::string& out : {request.output, request.hiddenOutput, request.summaryPath})
-            if (!out.empty() && std::filesystem::weakly_canonical(out) == std::filesystem::weakly_canonical(saveGraph))
+            if (!out.empty() && std::filesystem::weakly_canonical(std::filesystem::absolute(out)) ==
+                                    std::filesystem::weakly_canonical(std::filesystem::absolute(saveGraph)))
                 throw isouq::InputError("--save-graph " + saveGraph + " is also an output; give it its own path");
         isouq::checkWritable(saveGraph);
     }
@@ -124,6 +130,33 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     if (!saveGraph.empty()) isouq::writeTextFileAtomic(saveGraph, doc.dump(2) + "\n");
     printResult(result.outputs.at(isouq::nodes::kMeshGraphSummary).at("summary"), request.summaryPath);
     if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", saveGraph.c_str(), saveGraph.c_str());
+    return 0;
+}
+
+/// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
+int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
+{
+    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<std::string> warnings;
+    const auto onFrame = [&](std::size_t done, std::size_t total, int frame, const nlohmann::json& e) {
+        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        const double eta = seconds / double(done) * double(total - done);
+        char prefix[96];
+        std::snprintf(prefix, sizeof(prefix), "frame %zu/%zu, ETA %.0f s | ", done, total, eta);
+        progress.setPrefix(prefix);
+        std::printf("frame %d: %s %s: %zu vertices, %zu triangles, %zu components\n", frame,
+            e.value("resumed", false) ? "kept" : "wrote", e["output"].get<std::string>().c_str(),
+            e["vertices"].get<std::size_t>(), e["triangles"].get<std::size_t>(), e["components"].get<std::size_t>());
+        std::fflush(stdout);
+    };
+    const nlohmann::json s = isouq::nodes::runSequence(request, &progress, onFrame, &warnings);
+    printNotes(warnings, quiet);
+    const auto& t = s["totals"];
+    std::printf("%zu frames (%d empty, %d kept from an earlier run): %zu vertices, %zu triangles (isovalue %s)\n",
+        t["frames"].get<std::size_t>(), t["empty"].get<int>(), t["resumed"].get<int>(), t["vertices"].get<std::size_t>(),
+        t["triangles"].get<std::size_t>(), s["isovalue"].dump().c_str());
+    if (!request.frame.summaryPath.empty()) std::printf("wrote %s: sequence summary (JSON)\n", request.frame.summaryPath.c_str());
     return 0;
 }
 
@@ -169,7 +202,8 @@ int main(int argc, char** argv)
     MeshGraphRequest meshRequest;
     nlohmann::json plyParms = nlohmann::json::object(), summaryParms = plyParms;
     std::string saveGraph;
-    CLI::App* mesh = app.add_subcommand("mesh", "Extract an isosurface and write it as PLY with per-vertex attributes");
+    CLI::App* mesh = app.add_subcommand("mesh",
+        "Extract an isosurface and write it as PLY or VTP (by the extension) with per-vertex attributes");
     addParmOptions(*mesh, nodeType("read_volume"), meshRequest.read);
     mesh->get_option("INPUT")->required()->default_str("");
     addParmOptions(*mesh, nodeType("write_ply"), plyParms);
@@ -177,14 +211,23 @@ int main(int argc, char** argv)
     addParmOptions(*mesh, nodeType("mesh"), meshRequest.mesh);
     addParmOptions(*mesh, nodeType("write_summary"), summaryParms);
     mesh->get_option("--summary")->default_str("");
+    addParmOptions(*mesh, nodeType("color_map"), meshRequest.color);
     mesh->add_flag("--hidden-features", meshRequest.hiddenFeatures,
         "Also recover hidden features (paper sec. 4.2): the summary's 'hidden' block");
     addParmOptions(*mesh, nodeType("hidden_features"), meshRequest.hidden);
-    mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply)");
+    mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply or .vtp)");
     mesh->add_option("--save-graph", saveGraph,
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
     mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
+    isouq::nodes::SequenceRequest sequence;
+    auto* frames = mesh->add_option("--frames", sequence.frames,
+        "Sequences (INPUT with #### or %04d): frames A-B or A-B:STEP (default: every frame on disk)");
+    auto* resume = mesh->add_flag("--resume", sequence.resume, "Sequences: keep the frames whose outputs exist");
+    auto* skipMissing = mesh->add_flag("--skip-missing", sequence.skipMissing,
+        "Sequences: mesh the frames that exist instead of refusing a range with missing ones");
+    auto* frameJobs = mesh->add_option("--frame-jobs", sequence.frameJobs,
+        "Sequences: frames meshed at once, each with every thread")->check(CLI::Range(1, 64))->capture_default_str();
     mesh->footer(kMeshExamples);
 
     std::string demoDir = "isouq-demo";
@@ -234,7 +277,17 @@ int main(int argc, char** argv)
     try {
         if (*mesh) {
             meshRequest.output = plyParms.at("path");
+            plyParms.erase("path");
+            meshRequest.write = plyParms;
             meshRequest.summaryPath = summaryParms.value("path", std::string());
+            if (isouq::nodes::parseFramePattern(meshRequest.read.value("input", std::string()))) {
+                if (!saveGraph.empty()) throw isouq::InputError("--save-graph is for one input, not a sequence");
+                sequence.frame = meshRequest;
+                return runSequenceCommand(sequence, quiet);
+            }
+            for (const CLI::Option* o : {frames, resume, skipMissing, frameJobs})
+                if (o->count() > 0)
+                    throw isouq::InputError(o->get_name() + " is for sequences: INPUT needs #### or %04d in its name");
             return runMesh(meshRequest, saveGraph, quiet);
         }
         if (*demo) {

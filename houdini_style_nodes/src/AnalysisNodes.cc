@@ -1,7 +1,9 @@
 // isouq nodes: the analysis views as nodes (paper sec. 4.3, SPEC §7): threshold (C1), box
-// select (C2), method blend (C3), compare (C5/C6 data) and summary (C7). Mesh in, mesh out:
-// each adds named per-vertex columns and an info block; none reads the volume.
+// select (C2), method blend (C3), compare (C5/C6 data), color map (C4 for other viewers) and
+// summary (C7). Mesh in, mesh out: each adds named per-vertex columns and an info block; none
+// reads the volume.
 #include "NodeFamilies.h"
+#include <isouq/ColorMaps.h>
 #include <isouq/Columns.h>
 
 #include "isouq/nodes/Summary.h"
@@ -46,7 +48,7 @@ void cookThreshold(CookContext& ctx)
 {
     const ParmValues& p = ctx.parms;
     const std::string measure = p.getString("measure");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     // Add the column before taking references: adding may move the others.
     std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>(col::kAbove, out->mesh.vertexCount());
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
@@ -83,12 +85,44 @@ void cookThreshold(CookContext& ctx)
     ctx.outputs["mesh"].mesh = std::move(out);
 }
 
+/// C4 in the file (SPEC §10 "Formats"): `red green blue` from a colour map over a range, the
+/// 2nd to 98th percentile of the finite values unless given, and `quality` = the measure.
+void cookColorMap(CookContext& ctx)
+{
+    const ParmValues& p = ctx.parms;
+    const std::string measure = p.getString("measure");
+    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
+    std::vector<double> sorted;
+    sorted.reserve(values.size());
+    for (float v : values)
+        if (std::isfinite(v)) sorted.push_back(v);
+    std::sort(sorted.begin(), sorted.end());
+    const bool given = p.isSet("range");
+    double lo = 0.0, hi = 0.0;
+    if (given) {
+        const auto r = p.at("range").get<std::array<double, 2>>();
+        lo = r[0], hi = r[1];
+        if (!(lo < hi)) throw std::invalid_argument("parameter 'range': LO must be below HI");
+    } else if (!sorted.empty()) {
+        lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
+    }
+    const std::size_t noValue = values.size() - sorted.size();
+    if (noValue)
+        ctx.warn(std::to_string(noValue) + " vertices have no finite " + measure + ": coloured grey (128, 128, 128)");
+    const ColorMap map = *colorMapFromString(p.getString("colormap"));
+    addColorColumns(out->mesh, measure, map, lo, hi);
+    out->info["color"] = {{"measure", measure}, {"colormap", toString(map)}, {"range", {lo, hi}},
+        {"range_source", given ? "given" : "2nd and 98th percentiles"}, {"no_value", noValue}};
+    ctx.outputs["mesh"].mesh = std::move(out);
+}
+
 /// C2: `in_box` = |p - centre| <= size / 2 on every axis (closed box, in double).
 void cookBoxSelect(CookContext& ctx)
 {
     const auto c = ctx.parms.getVec3("center");
     const auto s = ctx.parms.getVec3("size");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const std::vector<openvdb::Vec3s>& pos = out->mesh.positions;
     std::vector<std::uint8_t>& in = out->mesh.vertexAttributes.add<std::uint8_t>(col::kInBox, pos.size());
     std::size_t count = 0;
@@ -141,7 +175,7 @@ void cookMethodBlend(CookContext& ctx)
     const ParmValues& p = ctx.parms;
     const std::string selection = p.getString("selection");
     const std::string inside = p.getString("inside"), outside = p.getString("outside");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const auto* selected = out->mesh.vertexAttributes.find<std::uint8_t>(selection);
     if (!selected)
         throw std::invalid_argument("parameter 'selection': input 'mesh' has no per-vertex '" + selection +
@@ -189,7 +223,7 @@ struct EdgeKeyHash {
 /// the distance to its vertex on the same source edge (NaN when it has none).
 void cookCompare(CookContext& ctx)
 {
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const std::size_t n = out->mesh.vertexCount();
     std::vector<float> dist(n, kNaN);
     const EdgePlacer place = EdgePlacer::of(*out);
@@ -308,6 +342,25 @@ void addAnalysisNodes(std::vector<NodeType>& types)
         {{"mesh", "mesh", "The mesh with `compare_dist` (float)"},
             {"stats", "json", "Mode and {min, max, mean, rms, count} of compare_dist"}},
         cookCompare});
+
+    std::vector<std::string> colorMaps;
+    for (ColorMap m : kAllColorMaps) colorMaps.push_back(toString(m));
+    types.push_back({"color_map", "Color Map",
+        "C4 for viewers without isouq (SPEC §10 \"Formats\"): per-vertex `red green blue` (uint8) from a colour "
+        "map of a measure over a range, and `quality` (the measure, MeshLab's vertex quality), so Blender's own "
+        "PLY importer, MeshLab and Open3D show the heat map (docs/ply-format.md \"Colours\").",
+        {
+            menuParm("measure", "Measure", measureColumns(), measureColumns().front(),
+                "Per-vertex measure to colour (isouq mesh: adds red green blue quality to the PLY)", "--color-by"),
+            menuParm("colormap", "Color Map", colorMaps, colorMaps.front(),
+                "Colour map: viridis, coolwarm (diverging) or gray", "--colormap"),
+            parm("range", "Range", ParmType::Vec2, nullptr,
+                "Measure values at the two ends of the map, LO,HI (unset: the 2nd and 98th percentiles of the "
+                "finite values)",
+                "--color-range"),
+        },
+        {{"mesh", "mesh", "A mesh with the measure"}},
+        {{"mesh", "mesh", "The mesh with `red green blue` (uint8) and `quality` (float)"}}, cookColorMap});
 
     types.push_back({"summary", "Summary",
         "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the blocks of the "

@@ -346,8 +346,18 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         ctx.interrupter = interrupter;
         ctx.warnings = &result.warnings;
         ctx.writes = &writes;
-        ctx.upstreamTimings = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
-        ctx.destinations = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
+        ctx.timingsOfUpstream = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
+        ctx.destinationsOf = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
+        ctx.meshTaker = [&](const std::string& port) {
+            const auto& src = node.inputs.at(port);
+            NodeValue& value = values[src.first].at(src.second);
+            if (!value.mesh) throw std::invalid_argument("input '" + port + "' holds no mesh");
+            std::size_t ports = 0; // this node's inputs that read the same value
+            for (const auto& [other, from] : node.inputs) ports += from == src;
+            if (lastReader[src.first] == n && ports == 1 && value.mesh.use_count() == 1)
+                return std::const_pointer_cast<MeshData>(std::move(value.mesh));
+            return std::make_shared<MeshData>(*value.mesh);
+        };
         for (const auto& [port, src] : node.inputs)
             ctx.inputs[port] = &values[src.first].at(src.second);
         throwIfInterrupted(interrupter);

@@ -1,6 +1,11 @@
 // isouq nodes: the graph that meshes one input (MeshGraph.h).
 #include "isouq/nodes/MeshGraph.h"
 
+#include <isouq/Errors.h>
+
+#include <cctype>
+#include <filesystem>
+
 namespace isouq::nodes {
 namespace {
 
@@ -16,6 +21,27 @@ bool hasExactField(const nlohmann::json& read)
 {
     const std::string input = read.value("input", std::string());
     return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0;
+}
+
+bool isVtp(const std::string& path)
+{
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return ext == ".vtp";
+}
+
+/// The writer of @a path, chosen by its extension (SPEC §10 "Formats"): write_vtp for .vtp,
+/// else write_ply with the request's PLY parameters.
+nlohmann::json writer(const char* id, const std::string& path, const nlohmann::json& plyParms, const std::string& mesh)
+{
+    if (!isVtp(path)) {
+        nlohmann::json parms = plyParms;
+        parms["path"] = path;
+        return node(id, "write_ply", parms, {{"mesh", mesh}});
+    }
+    if (!plyParms.empty())
+        throw InputError("--ply-format applies to .ply outputs, and " + path + " is a .vtp file");
+    return node(id, "write_vtp", {{"path", path}}, {{"mesh", mesh}});
 }
 
 } // namespace
@@ -36,15 +62,24 @@ nlohmann::json meshGraph(const MeshGraphRequest& request)
         nodes.push_back(node("truth", "truth", {}, {{"volume", "load"}, {"mesh", "mesh"}}));
         standard = "truth";
     }
-    nlohmann::json summaryInputs = {{"mesh", standard}};
-    if (hidden) {
+    std::string hiddenMesh = "hidden";
+    if (hidden)
         nodes.push_back(node("hidden", "hidden_features", request.hidden, {{"volume", "load"}, {"mesh", standard}}));
-        summaryInputs["hidden"] = "hidden";
+    // --color-by: red green blue quality on each mesh before it is summarised and written.
+    if (request.color.contains("measure")) {
+        nodes.push_back(node("color", "color_map", request.color, {{"mesh", standard}}));
+        standard = "color";
+        if (hidden) {
+            nodes.push_back(node("color_hidden", "color_map", request.color, {{"mesh", hiddenMesh}}));
+            hiddenMesh = "color_hidden";
+        }
     }
+    nlohmann::json summaryInputs = {{"mesh", standard}};
+    if (hidden) summaryInputs["hidden"] = hiddenMesh;
     nodes.push_back(node(kMeshGraphSummary, "summary", {}, summaryInputs));
-    nodes.push_back(node("write", "write_ply", {{"path", request.output}}, {{"mesh", standard}}));
+    nodes.push_back(writer("write", request.output, request.write, standard));
     if (!request.hiddenOutput.empty())
-        nodes.push_back(node("write_hidden", "write_ply", {{"path", request.hiddenOutput}}, {{"mesh", "hidden"}}));
+        nodes.push_back(writer("write_hidden", request.hiddenOutput, request.write, hiddenMesh));
     if (!request.summaryPath.empty())
         nodes.push_back(node("write_summary", "write_summary", {{"path", request.summaryPath}},
             {{"summary", kMeshGraphSummary}}));

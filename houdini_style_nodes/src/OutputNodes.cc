@@ -1,13 +1,15 @@
-// isouq nodes: the nodes that write files — write_ply, write_summary, report. Each cook only
-// queues a PendingWrite; the graph commits them after every node has cooked (Node.h).
+// isouq nodes: the nodes that write files — write_ply, write_vtp, write_summary, report. Each
+// cook only queues a PendingWrite; the graph commits them after every node has cooked (Node.h).
 #include "NodeFamilies.h"
 
 #include "isouq/nodes/Resources.h"
 
 #include <isouq/MeshIO.h>
 
+#include <cctype>
 #include <cstdlib>
 #include <filesystem>
+#include <stdexcept>
 #include <sys/wait.h>
 
 namespace isouq::nodes::nodes_internal {
@@ -21,14 +23,37 @@ PlyOptions plyOptionsOf(const MeshData& m)
     ply.version = ISOUQ_VERSION_STRING;
     ply.isovalue = m.isovalue;
     ply.method = m.method;
+    // Where the index_to_world comment comes from for scans with a header (SPEC §10 "Formats").
+    if (m.info.contains("geometry")) ply.comments.push_back("isouq geometry " + m.info["geometry"].get<std::string>());
     return ply;
+}
+
+bool hasExtension(const std::string& path, const char* extension)
+{
+    std::string ext = fs::path(path).extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return ext == extension;
 }
 
 void cookWritePly(CookContext& ctx)
 {
     auto mesh = ctx.input("mesh")->mesh;
     const std::string path = ctx.parms.getString("path");
-    ctx.writes->push_back({path, [mesh, path](OutputBatch& batch) { batch.addPly(mesh->mesh, path, plyOptionsOf(*mesh)); }});
+    if (hasExtension(path, ".vtp"))
+        throw std::invalid_argument("parameter 'path': " + path + " is a .vtp file; write it with a write_vtp node");
+    PlyOptions options = plyOptionsOf(*mesh);
+    if (ctx.parms.getString("format") == "ascii") options.encoding = PlyEncoding::Ascii;
+    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addPly(mesh->mesh, path, options); }});
+}
+
+void cookWriteVtp(CookContext& ctx)
+{
+    auto mesh = ctx.input("mesh")->mesh;
+    const std::string path = ctx.parms.getString("path");
+    if (!hasExtension(path, ".vtp"))
+        throw std::invalid_argument("parameter 'path': " + path + " does not end in .vtp (VTK XML PolyData)");
+    const MeshFileOptions options = plyOptionsOf(*mesh);
+    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addVtp(mesh->mesh, path, options); }});
 }
 
 void cookWriteSummary(CookContext& ctx)
@@ -87,10 +112,22 @@ void cookReport(CookContext& ctx)
 void addOutputNodes(std::vector<NodeType>& types)
 {
     types.push_back({"write_ply", "Write PLY",
-        "Writes the mesh as binary little-endian PLY with every attribute (SPEC §6; docs/ply-format.md), "
-        "atomically.",
-        {parm("path", "Path", ParmType::Path, "out.ply", "Output mesh (.ply, binary little-endian)", "-o,--output")},
+        "Writes the mesh as PLY with every attribute (SPEC §6; docs/ply-format.md), binary little-endian or "
+        "ascii, atomically.",
+        {parm("path", "Path", ParmType::Path, "out.ply",
+             "Output mesh (.ply, binary little-endian; with isouq mesh a .vtp path writes VTK XML PolyData)",
+             "-o,--output"),
+            menuParm("format", "Format", {"binary", "ascii"}, "binary",
+                "PLY encoding: binary little-endian, or ascii (what meshio 7 reads face columns from)",
+                "--ply-format")},
         {{"mesh", "mesh", "The mesh to write"}}, {}, cookWritePly, /*meshWriter=*/true});
+
+    types.push_back({"write_vtp", "Write VTP",
+        "Writes the mesh as VTK XML PolyData for ParaView and VTK (SPEC §10; docs/vtp-format.md): every vertex "
+        "column as point data and every face column as cell data under its own name, the PLY header "
+        "comments as field data; raw binary appended, atomically.",
+        {parm("path", "Path", ParmType::Path, "out.vtp", "Output mesh (.vtp)")},
+        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWriteVtp, /*meshWriter=*/true});
 
     types.push_back({"write_summary", "Write Summary",
         "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.",

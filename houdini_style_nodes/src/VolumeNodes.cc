@@ -57,8 +57,14 @@ void cookReadVolume(CookContext& ctx)
     }
     if (p.isSet("isovalue")) request.isovalue = float(p.getFloat("isovalue"));
     request.keep = keepFromString(p.getString("keep"));
+    request.allowEmpty = p.getBool("allow_empty");
 
     auto volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
+    if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
+        ctx.warn(volume->description + ": the grid is empty; an empty mesh");
+        ctx.outputs["volume"].volume = std::move(volume);
+        return;
+    }
     const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
     if (!problem.empty()) throw InputError(problem);
     if (volume->isovalueSource != "given") {
@@ -92,6 +98,9 @@ void cookMesh(CookContext& ctx)
     out->info["input"] = volume.input;
     out->info["description"] = volume.description;
     out->info["isovalue_source"] = settings.isovalue == volume.isovalue ? volume.isovalueSource : "given";
+    // The input's affine (SPEC §10 "Formats"), also the PLY's `comment isouq index_to_world`.
+    out->info["index_to_world"] = out->mesh.indexToWorld;
+    if (!volume.geometry.empty()) out->info["geometry"] = volume.geometry;
     if (volume.denseBlocks > 0)
         out->info["sparse_blocks"] = {{"dense", volume.denseBlocks}, {"kept", volume.keptBlocks}};
     ctx.outputs["mesh"].mesh = std::move(out);
@@ -102,7 +111,7 @@ void cookMesh(CookContext& ctx)
 void cookErrorEstimate(CookContext& ctx)
 {
     const LoadedVolume& volume = inputVolume(ctx);
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     AttributeTable& a = out->mesh.vertexAttributes;
     const std::size_t n = out->mesh.vertexCount();
     // Add the columns before taking references: adding may move the others.
@@ -175,7 +184,7 @@ void cookHiddenFeatures(CookContext& ctx)
         ctx.warn("a dense source read with keep=crossing may miss hidden features far from crossings; "
                  "read it with keep=crossing_or_hidden");
     HiddenFeatureStats stats;
-    auto out = std::make_shared<MeshData>(standard);
+    auto out = std::make_shared<MeshData>(standard.withoutMesh());
     out->mesh = addHiddenFeatures(*volume.grid, standard.mesh, settingsOf(standard), hidden, &stats, ctx.interrupter);
     const MeshTopologyStats before = measureTopology(standard.mesh), after = measureTopology(out->mesh);
     out->info["hidden"] = {{"cells_flagged", stats.cellsFlagged}, {"cells_total", stats.cellsTotal},
@@ -191,7 +200,7 @@ void cookTruth(CookContext& ctx)
 {
     const LoadedVolume& volume = inputVolume(ctx);
     if (!volume.truth) throw std::invalid_argument("input 'volume' has no exact field (only field: and formula: inputs do)");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     TruthSettings settings;
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
     const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
@@ -208,17 +217,20 @@ void cookTruth(CookContext& ctx)
 void addVolumeNodes(std::vector<NodeType>& types)
 {
     types.push_back({"read_volume", "Read Volume",
-        "Loads a .vdb grid, a raw scan, a SPEC §5 field or a formula as a sparse FloatGrid and decides the "
-        "isovalue (SPEC §8; docs/inputs.md).",
+        "Loads a .vdb grid, a raw scan, a scan with a header (NIfTI, NRRD, TIFF stack, DICOM series), a SPEC §5 "
+        "field or a formula as a sparse FloatGrid and decides the isovalue (SPEC §8, §10; docs/inputs.md).",
         {
             parm("input", "Input", ParmType::String, "field:teardrop",
-                "FILE.vdb, NAME_XxYxZ_DTYPE.raw, field:NAME or formula:EXPR", "INPUT"),
+                "FILE.vdb, NAME_XxYxZ_DTYPE.raw, .nii[.gz], .nrrd, .nhdr, .tif[f] or a folder (TIFF slices, one DICOM "
+                "series), field:NAME or formula:EXPR",
+                "INPUT"),
             parm("grid", "Grid", ParmType::String, nullptr, ".vdb: the float grid to read (unset: the first)", "--grid"),
             ranged(parm("dims", "Dimensions", ParmType::Int3, nullptr, ".raw: X,Y,Z (unset: from the file name)", "--dims"),
                 std::nullopt, std::make_pair(1.0, 1.0e6)),
             menuParm("dtype", "Data Type", {"uint8", "uint16", "int16", "float32", "float64"}, nullptr,
                 ".raw: sample type (unset: from the file name)", "--dtype"),
-            ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr, ".raw: voxel spacing X,Y,Z (unset: 1,1,1)", "--spacing"),
+            ranged(parm("spacing", "Spacing", ParmType::Vec3, nullptr,
+                       ".raw and TIFF: voxel spacing X,Y,Z (unset: 1,1,1, or a TIFF's ImageJ spacing)", "--spacing"),
                 std::nullopt, std::make_pair(0.0, kInf)),
             ranged(parm("resolution", "Resolution", ParmType::Int, nullptr,
                        "field:/formula:: samples per axis, both domain ends included (unset: the paper's; 64)",
@@ -232,6 +244,9 @@ void addVolumeNodes(std::vector<NodeType>& types)
             menuParm("keep", "Keep Blocks", {"crossing", "crossing_or_hidden", "non_constant", "all"}, "crossing",
                 "Dense sources: which 8^3 blocks stay active (crossing_or_hidden for hidden features; "
                 "non_constant to mesh at other isovalues)"),
+            parm("allow_empty", "Allow Empty", ParmType::Bool, false,
+                "An empty grid (or, with a grid name, an absent one) gives an empty mesh instead of an "
+                "error: frames of a simulation cache (docs/sequences.md)"),
         },
         {}, {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}},
         cookReadVolume});

@@ -1,6 +1,8 @@
 // The command-line contract of SPEC §8, tested through the real binary: bad input gives one line
 // "isouq: error: ...", exit status 2, no output file, and an existing output left untouched;
 // the output does not depend on the thread count.
+#include "CliHarness.h"
+
 #include <isouq/MarchingCubes.h>
 
 #include <openvdb/io/File.h>
@@ -8,83 +10,10 @@
 
 #include <catch2/catch.hpp>
 
-#include <sys/wait.h>
-
 #include <cmath>
-#include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <sstream>
 
-namespace fs = std::filesystem;
-
-namespace {
-
-struct CliResult {
-    int status = -1;
-    std::vector<std::string> stderrLines;
-};
-
-std::string quote(const std::string& s) { return "'" + s + "'"; }
-
-CliResult runCli(const std::string& args, const fs::path& dir)
-{
-    const fs::path errFile = dir / "stderr.txt";
-    const std::string command = std::string(ISOUQ_CLI) + " " + args + " > /dev/null 2> " + quote(errFile);
-    const int raw = std::system(command.c_str());
-    CliResult r;
-    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    std::ifstream in(errFile);
-    for (std::string line; std::getline(in, line);) r.stderrLines.push_back(line);
-    return r;
-}
-
-std::string readFile(const fs::path& p)
-{
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
-void writeFile(const fs::path& p, const std::string& bytes)
-{
-    std::ofstream(p, std::ios::binary) << bytes;
-}
-
-struct TempDir {
-    fs::path path;
-    TempDir()
-    {
-        path = fs::temp_directory_path() / ("isouq-cli-" + std::to_string(::getpid()) + "-" +
-                                            std::to_string(std::rand()));
-        fs::create_directories(path);
-    }
-    ~TempDir() { fs::remove_all(path); }
-};
-
-/// Runs `isouq mesh INPUT_ARGS -o OUT` twice: with no output present (none may appear) and with
-/// an existing output (it must stay byte-identical). Each run: exit 2, one "isouq: error:" line.
-void requireCleanFailure(const std::string& inputArgs, const fs::path& dir, const std::string& mustMention)
-{
-    const fs::path out = dir / "out.ply";
-    fs::remove(out);
-    CliResult r = runCli("mesh " + inputArgs + " -q -o " + quote(out) + " --summary " + quote(dir / "s.json"), dir);
-    INFO("isouq mesh " << inputArgs);
-    CHECK(r.status == 2);
-    REQUIRE(r.stderrLines.size() == 1);
-    CHECK(r.stderrLines[0].rfind("isouq: error: ", 0) == 0);
-    CHECK(r.stderrLines[0].find(mustMention) != std::string::npos);
-    CHECK_FALSE(fs::exists(out));
-    CHECK_FALSE(fs::exists(dir / "s.json"));
-    writeFile(out, "precious");
-    r = runCli("mesh " + inputArgs + " -q -o " + quote(out), dir);
-    CHECK(r.status == 2);
-    CHECK(readFile(out) == "precious");
-    fs::remove(out);
-    for (const auto& entry : fs::directory_iterator(dir)) // no temporary left behind
-        CHECK(entry.path().filename().string().find(".tmp") == std::string::npos);
-}
-
-} // namespace
+using namespace isouq_test;
 
 TEST_CASE("CLI: bad input gives one line, exit 2, and writes nothing", "[cli][errors]")
 {

@@ -1,7 +1,7 @@
 """isouq's PLY files (docs/ply-format.md, SPEC §6) through two readers: ply_io, the one reader
 of the add-on and the scripts, and meshio (Debian's python3-meshio), an outside reader for the
-values it reads correctly (meshio 7 reads PLY uchar as int8 and fails on face properties after
-vertex_indices). The C++ test test_MeshIO runs this file as `python3 test_ply_format.py --dump
+values it reads correctly (meshio 7 reads binary PLY `uchar` as int8, so isouq writes `uint8`,
+and it takes one value per binary face property, so it fails on files with face columns). The C++ test test_MeshIO runs this file as `python3 test_ply_format.py --dump
 FILE` on files written by isouq::writePly and compares the JSON it prints with the mesh it wrote.
 Under pytest the readers are checked against bytes assembled here with struct, and against the
 isouq CLI's output when $ISOUQ_CLI exists.
@@ -60,12 +60,11 @@ def dump(path):
         import meshio
     except ImportError:
         return out
-    if mesh.face_attributes:  # meshio 7 fails on face properties after vertex_indices
+    if mesh.face_attributes:  # meshio 7 reads one value per binary face property and fails
         return out
     m = meshio.read(path, file_format="ply")
     out["meshio"] = {"points": _exact(m.points.astype(np.float32).ravel()),
-                     "point_data": {n: _exact(v.astype(vertex[n].dtype))  # int8 -> uchar bits
-                                    for n, v in m.point_data.items()},
+                     "point_data": {n: _exact(v) for n, v in m.point_data.items()},
                      "triangles": m.cells_dict["triangle"].ravel().tolist()}
     return out
 

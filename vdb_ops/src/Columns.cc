@@ -60,6 +60,10 @@ const std::vector<ColumnInfo>& columnTable()
         {col::kAbove, T::UInt8, V, false, false, "1 where the threshold node's measure is above its threshold (C1)"},
         {col::kInBox, T::UInt8, V, false, false, "1 inside the box_select node's box (C2)"},
         {col::kCompareDist, T::Float32, V, true, true, "compare node: distance between two methods or meshes (C5/C6)"},
+        {col::kRed, T::UInt8, V, false, false, "color_map node (--color-by): the measure's colour, red (PLY vertex colour)"},
+        {col::kGreen, T::UInt8, V, false, false, "color_map node (--color-by): the measure's colour, green"},
+        {col::kBlue, T::UInt8, V, false, false, "color_map node (--color-by): the measure's colour, blue"},
+        {col::kQuality, T::Float32, V, false, false, "color_map node (--color-by): the coloured measure itself (MeshLab's vertex quality)"},
         {col::kVertexIndices, T::List, F, false, false, "the triangle's three vertex indices (PLY list uchar int)"},
         {col::kHidden, T::UInt8, F, false, false, "1 for a triangle from hidden-feature refinement or patching"},
     };

@@ -5,6 +5,7 @@
 
 #include <tbb/parallel_reduce.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -86,15 +87,34 @@ std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<floa
                 + di::str(voxel[1]) + " " + di::str(voxel[2]) + " (each must be positive and finite)";
         }
     }
+    // Vertices are float32 world positions: every corner of the active box must map into range.
+    const openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
+    for (int corner = 0; corner < 8; ++corner) {
+        const openvdb::Coord c((corner & 1 ? box.max() : box.min()).x(), (corner & 2 ? box.max() : box.min()).y(),
+            (corner & 4 ? box.max() : box.min()).z());
+        const openvdb::Vec3d w = grid.indexToWorld(c);
+        for (int a = 0; a < 3; ++a)
+            if (!(std::fabs(w[a]) <= double(std::numeric_limits<float>::max())))
+                return name + " has a bad transform: voxel " + di::str(c) + " is at world " + di::str(w)
+                    + ", beyond float32 coordinates (check the spacing and origin)";
+    }
+    const float background = grid.background();
+    if (!std::isfinite(background)) {
+        return name + " has a non-finite background value " + di::str(background)
+            + " (inactive voxels read it); set a finite background";
+    }
     const di::ValueScan scan = di::scanActiveValues(grid);
     if (scan.nonFinite > 0) {
         return name + " has " + std::to_string(scan.nonFinite) + " active non-finite value(s); the first, "
             + di::str(scan.firstValue) + ", at voxel " + di::str(scan.first);
     }
     if (isovalue && !std::isfinite(*isovalue)) return "isovalue " + di::str(*isovalue) + " is not finite";
-    if (isovalue && !(scan.min <= *isovalue && *isovalue <= scan.max)) {
-        return "isovalue " + di::str(*isovalue) + " is outside the range of the active values of "
-            + name + ", [" + di::str(scan.min) + ", " + di::str(scan.max) + "]";
+    // A sparse grid's surface also lies where active voxels meet the background (SPEC §10).
+    const float lo = std::min(scan.min, background), hi = std::max(scan.max, background);
+    if (isovalue && !(lo <= *isovalue && *isovalue <= hi)) {
+        return "isovalue " + di::str(*isovalue) + " is outside the range of " + name + ", [" + di::str(lo) + ", "
+            + di::str(hi) + "] (active values [" + di::str(scan.min) + ", " + di::str(scan.max) + "], background "
+            + di::str(background) + ")";
     }
     return "";
 }

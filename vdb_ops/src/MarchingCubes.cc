@@ -22,9 +22,17 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <string>
 
 namespace isouq {
 namespace mc_internal {
@@ -191,6 +199,52 @@ void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupt
     if (stop) throw InterruptedError();
 }
 
+/// Bytes this process can still allocate: the kernel's MemAvailable, and under an address-space
+/// limit (ulimit -v) what is left of it; 0 if unknown.
+inline std::uint64_t availableMemory()
+{
+    std::uint64_t available = 0;
+    std::ifstream meminfo("/proc/meminfo");
+    for (std::string key; meminfo >> key;) {
+        std::uint64_t kib = 0;
+        meminfo >> kib;
+        if (key == "MemAvailable:") {
+            available = kib * 1024;
+            break;
+        }
+        meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+    }
+    rlimit limit{};
+    std::uint64_t pages = 0;
+    if (::getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY && (std::ifstream("/proc/self/statm") >> pages)) {
+        const std::uint64_t used = pages * std::uint64_t(::sysconf(_SC_PAGESIZE));
+        const std::uint64_t left = limit.rlim_cur > used ? limit.rlim_cur - used : 1;
+        available = available ? std::min(available, left) : left;
+    }
+    return available;
+}
+
+/// Refuses, before allocating it, a mesh that needs more memory than there is (SPEC §10
+/// "Errors"): a small file can describe a huge surface (one active 4096^3 tile).
+inline void checkMeshFits(std::uint64_t vertices, std::uint64_t triangles, const MeshSettings& settings, bool provenance)
+{
+    // positions; edge_i/j/k, edge_axis, t_linear; err_est, err_bound; 11 high-order columns.
+    std::uint64_t perVertex = 12 + (provenance ? 17 : 0);
+    if (settings.uncertainty) perVertex += 8 + (settings.highOrder ? 45 : 0);
+    const std::uint64_t bytes = vertices * perVertex + triangles * 12;
+    const std::uint64_t available = availableMemory();
+    if (available == 0 || bytes <= available) return;
+    const auto gib = [](std::uint64_t b) {
+        std::ostringstream os;
+        os.precision(3);
+        os << double(b) / double(1ull << 30);
+        return os.str();
+    };
+    throw InputError("the mesh would have " + std::to_string(vertices) + " vertices and " +
+        std::to_string(triangles) + " triangles, " + gib(bytes) + " GiB, more than the " + gib(available) +
+        " GiB of memory available");
+}
+
 } // namespace mc_internal
 
 namespace mc_internal {
@@ -288,6 +342,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     }
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
+    checkMeshFits(vertexOffsets[blockCount], triangleOffsets[blockCount], settings, provenance);
 
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();

@@ -1,6 +1,6 @@
 // isouq: PLY writer and reader (SPEC §6) and atomic writes (SPEC §8: no output is left behind
 // on failure, an existing output is never clobbered). Header layout: docs/ply-format.md.
-#include "isouq/MeshIO.h"
+#include "MeshIOInternal.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -17,6 +17,7 @@
 #include <cstring>
 #include <memory>
 #include <string_view>
+#include <type_traits>
 
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the PLY writer assumes little endian");
 
@@ -56,84 +57,72 @@ void releaseTempSlot(int slot)
     sTempSlots[slot].used.store(false);
 }
 
-/// A file written under a short temporary name `.isouq-<pid>-<n>.tmp` next to the target (any
-/// legal target name fits) and renamed onto it by commit(). Destroyed without commit, it
-/// removes the temporary file.
-class AtomicFile {
-public:
-    explicit AtomicFile(const std::string& path) : mPath(path)
-    {
-        const std::size_t slash = mPath.find_last_of('/');
-        const std::string dir = slash == std::string::npos ? "" : mPath.substr(0, slash + 1);
-        const std::string name = slash == std::string::npos ? mPath : mPath.substr(slash + 1);
-        if (name.empty() || name == "." || name == "..") fail("not a file name");
-        struct stat st;
-        if (::stat(mPath.c_str(), &st) == 0) {
-            if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
-            if (::access(mPath.c_str(), W_OK) != 0) fail(std::strerror(errno));
-        }
-        const std::string temp = dir + ".isouq-" + std::to_string(::getpid()) + "-" +
-            std::to_string(sTempCounter.fetch_add(1)) + ".tmp";
-        mSlot = claimTempSlot(temp);
-        mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0666);
-        if (mFd < 0) {
-            releaseTempSlot(mSlot);
+// A short temporary name `.isouq-<pid>-<n>.tmp` next to the target, so any legal target name fits.
+AtomicFile::AtomicFile(const std::string& path) : mPath(path)
+{
+    const std::size_t slash = mPath.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "" : mPath.substr(0, slash + 1);
+    const std::string name = slash == std::string::npos ? mPath : mPath.substr(slash + 1);
+    if (name.empty() || name == "." || name == "..") fail("not a file name");
+    struct stat st;
+    if (::stat(mPath.c_str(), &st) == 0) {
+        if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
+        if (::access(mPath.c_str(), W_OK) != 0) fail(std::strerror(errno));
+    }
+    const std::string temp = dir + ".isouq-" + std::to_string(::getpid()) + "-" +
+        std::to_string(sTempCounter.fetch_add(1)) + ".tmp";
+    mSlot = claimTempSlot(temp);
+    mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0666);
+    if (mFd < 0) {
+        releaseTempSlot(mSlot);
+        fail(std::strerror(errno));
+    }
+    mTemp = temp;
+}
+
+AtomicFile::~AtomicFile()
+{
+    if (mFd >= 0) ::close(mFd);
+    if (!mTemp.empty()) ::unlink(mTemp.c_str());
+    releaseTempSlot(mSlot);
+}
+
+void AtomicFile::write(const char* data, std::size_t size)
+{
+    while (size > 0) {
+        const ssize_t n = ::write(mFd, data, size);
+        if (n < 0) {
+            if (errno == EINTR) continue;
             fail(std::strerror(errno));
         }
-        mTemp = temp;
+        data += n;
+        size -= static_cast<std::size_t>(n);
     }
-    AtomicFile(const AtomicFile&) = delete;
-    AtomicFile& operator=(const AtomicFile&) = delete;
-    ~AtomicFile()
-    {
-        if (mFd >= 0) ::close(mFd);
-        if (!mTemp.empty()) ::unlink(mTemp.c_str());
-        releaseTempSlot(mSlot);
-    }
+}
 
-    void write(const char* data, std::size_t size)
-    {
-        while (size > 0) {
-            const ssize_t n = ::write(mFd, data, size);
-            if (n < 0) {
-                if (errno == EINTR) continue;
-                fail(std::strerror(errno));
-            }
-            data += n;
-            size -= static_cast<std::size_t>(n);
-        }
-    }
+void AtomicFile::commit()
+{
+    const int fd = mFd;
+    mFd = -1;
+    if (::close(fd) != 0) fail(std::strerror(errno));
+    if (::rename(mTemp.c_str(), mPath.c_str()) != 0) fail(std::strerror(errno));
+    mTemp.clear();
+    releaseTempSlot(mSlot);
+    mSlot = -1;
+}
 
-    void commit()
-    {
-        const int fd = mFd;
-        mFd = -1;
-        if (::close(fd) != 0) fail(std::strerror(errno));
-        if (::rename(mTemp.c_str(), mPath.c_str()) != 0) fail(std::strerror(errno));
-        mTemp.clear();
-        releaseTempSlot(mSlot);
-        mSlot = -1;
-    }
-
-    [[noreturn]] void fail(const std::string& reason) const
-    {
-        throw IoError("cannot write " + mPath + ": " + reason);
-    }
-
-private:
-    std::string mPath, mTemp;
-    int mFd = -1;
-    int mSlot = -1;
-};
+void AtomicFile::fail(const std::string& reason) const
+{
+    throw IoError("cannot write " + mPath + ": " + reason);
+}
 
 // ---------------------------------------------------------------------------------------
 // Writer
 // ---------------------------------------------------------------------------------------
 
-constexpr std::size_t kChunkBytes = std::size_t(1) << 22;
-
-/// PLY type names of the AttributeData alternatives (float, int32, uint8).
-constexpr const char* sPlyTypeNames[] = {"float", "int", "uchar"};
+/// PLY type names of the AttributeData alternatives (float, int32, uint8). `uint8`, not
+/// `uchar`: meshio 7 reads binary `uchar` as int8 (docs/ply-format.md "Other readers").
+constexpr const char* sPlyTypeNames[] = {"float", "int", "uint8"};
 constexpr std::size_t sPlyTypeSizes[] = {4, 4, 1};
 
 std::string formatDouble(double v)
@@ -178,7 +167,7 @@ void checkColumns(const AtomicFile& file, const AttributeTable& table, std::size
     }
 }
 
-std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
+std::vector<std::string> headerComments(const AtomicFile& file, const Mesh& mesh, const MeshFileOptions& options)
 {
     std::vector<std::string> comments;
     if (!options.version.empty()) comments.push_back("isouq version " + options.version);
@@ -188,12 +177,17 @@ std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions
     if (options.isovalue) comments.push_back("isouq isovalue " + formatFloat(*options.isovalue));
     if (!options.method.empty()) comments.push_back("isouq method " + options.method);
     comments.insert(comments.end(), options.comments.begin(), options.comments.end());
-
-    std::string h = "ply\nformat binary_little_endian 1.0\n";
-    for (const std::string& c : comments) {
+    for (const std::string& c : comments)
         if (c.find_first_of("\r\n") != std::string::npos) file.fail("comment with a line break");
-        h += "comment " + c + "\n";
-    }
+    return comments;
+}
+
+std::string plyHeader(const AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
+{
+    std::string h = "ply\nformat ";
+    h += options.encoding == PlyEncoding::Ascii ? "ascii" : "binary_little_endian";
+    h += " 1.0\n";
+    for (const std::string& c : headerComments(file, mesh, options)) h += "comment " + c + "\n";
     h += "element vertex " + std::to_string(mesh.vertexCount()) + "\n";
     h += "property float x\nproperty float y\nproperty float z\n";
     for (const Attribute& a : mesh.vertexAttributes.columns())
@@ -222,7 +216,15 @@ void interleaveColumns(const AttributeTable& table, std::size_t begin, std::size
     }
 }
 
-void writeBody(AtomicFile& file, const Mesh& mesh)
+void checkTriangle(const AtomicFile& file, const Mesh& mesh, std::size_t f)
+{
+    const openvdb::Vec3I& t = mesh.triangles[f];
+    const std::size_t nv = mesh.vertexCount();
+    if (t[0] >= nv || t[1] >= nv || t[2] >= nv)
+        file.fail("triangle " + std::to_string(f) + " has a vertex index out of range");
+}
+
+void writeBinaryBody(AtomicFile& file, const Mesh& mesh)
 {
     const std::size_t nv = mesh.vertexCount(), nf = mesh.triangleCount();
     const std::size_t vStride = rowBytes(mesh.vertexAttributes, 12);
@@ -243,9 +245,8 @@ void writeBody(AtomicFile& file, const Mesh& mesh)
         const std::size_t rows = std::min(fChunk, nf - begin);
         char* row = chunk.data();
         for (std::size_t r = 0; r < rows; ++r, row += fStride) {
+            checkTriangle(file, mesh, begin + r);
             const openvdb::Vec3I& t = mesh.triangles[begin + r];
-            if (t[0] >= nv || t[1] >= nv || t[2] >= nv)
-                file.fail("triangle " + std::to_string(begin + r) + " has a vertex index out of range");
             const std::int32_t idx[3] = {std::int32_t(t[0]), std::int32_t(t[1]), std::int32_t(t[2])};
             row[0] = 3;
             std::memcpy(row + 1, idx, 12);
@@ -253,6 +254,43 @@ void writeBody(AtomicFile& file, const Mesh& mesh)
         interleaveColumns(mesh.faceAttributes, begin, rows, chunk.data(), 13, fStride);
         file.write(chunk.data(), rows * fStride);
     }
+}
+
+/// Appends " value" of row @a r of every column.
+void appendAsciiRow(std::string& out, const AttributeTable& table, std::size_t r)
+{
+    for (const Attribute& a : table.columns())
+        std::visit([&](const auto& v) {
+            using T = typename std::decay_t<decltype(v)>::value_type;
+            out += ' ';
+            if constexpr (std::is_same_v<T, float>) out += formatFloat(v[r]);
+            else out += std::to_string(v[r]);
+        }, a.data);
+}
+
+/// One line per vertex and per face; floats as their shortest round-trip text.
+void writeAsciiBody(AtomicFile& file, const Mesh& mesh)
+{
+    std::string out;
+    auto flush = [&](bool always) {
+        if (always || out.size() >= kChunkBytes) file.write(out), out.clear();
+    };
+    for (std::size_t v = 0; v < mesh.vertexCount(); ++v) {
+        const openvdb::Vec3s& p = mesh.positions[v];
+        out += formatFloat(p[0]) + ' ' + formatFloat(p[1]) + ' ' + formatFloat(p[2]);
+        appendAsciiRow(out, mesh.vertexAttributes, v);
+        out += '\n';
+        flush(false);
+    }
+    for (std::size_t f = 0; f < mesh.triangleCount(); ++f) {
+        checkTriangle(file, mesh, f);
+        const openvdb::Vec3I& t = mesh.triangles[f];
+        out += "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' + std::to_string(t[2]);
+        appendAsciiRow(out, mesh.faceAttributes, f);
+        out += '\n';
+        flush(false);
+    }
+    flush(true);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -659,9 +697,9 @@ void writePlyTo(AtomicFile& file, const Mesh& mesh, const PlyOptions& options)
     if (mesh.vertexCount() > std::size_t(INT32_MAX)) file.fail("more vertices than PLY int indices hold");
     checkColumns(file, mesh.vertexAttributes, mesh.vertexCount(), "vertex", {"x", "y", "z"});
     checkColumns(file, mesh.faceAttributes, mesh.triangleCount(), "face", {"vertex_indices"});
-    const std::string header = plyHeader(file, mesh, options);
-    file.write(header.data(), header.size());
-    writeBody(file, mesh);
+    file.write(plyHeader(file, mesh, options));
+    if (options.encoding == PlyEncoding::Ascii) writeAsciiBody(file, mesh);
+    else writeBinaryBody(file, mesh);
 }
 } // namespace meshio_internal
 
@@ -669,6 +707,13 @@ void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& optio
 {
     meshio_internal::AtomicFile file(path);
     meshio_internal::writePlyTo(file, mesh, options);
+    file.commit();
+}
+
+void writeVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options)
+{
+    meshio_internal::AtomicFile file(path);
+    meshio_internal::writeVtpTo(file, mesh, options);
     file.commit();
 }
 
@@ -683,6 +728,13 @@ void OutputBatch::addPly(const Mesh& mesh, const std::string& path, const PlyOpt
 {
     auto file = std::make_unique<meshio_internal::AtomicFile>(path);
     meshio_internal::writePlyTo(*file, mesh, options);
+    mImpl->files.push_back(std::move(file));
+}
+
+void OutputBatch::addVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options)
+{
+    auto file = std::make_unique<meshio_internal::AtomicFile>(path);
+    meshio_internal::writeVtpTo(*file, mesh, options);
     mImpl->files.push_back(std::move(file));
 }
 

@@ -118,6 +118,10 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
         throw InputError("'" + path + "' has " + std::to_string(size) + " bytes but " + shape
             + " needs " + std::to_string(bytes));
     }
+    if (d[0] < 2 || d[1] < 2 || d[2] < 2) {
+        throw InputError("'" + file + "': " + shape + " has no cell (a cell needs 2 samples along each axis): "
+            "nothing to mesh");
+    }
     constexpr std::uint64_t maxDim = std::numeric_limits<std::int32_t>::max() - kBlock;
     if (d[0] > maxDim || d[1] > maxDim || d[2] > maxDim) {
         throw InputError("'" + file + "': " + shape + " exceeds OpenVDB's index range");

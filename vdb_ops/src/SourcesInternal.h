@@ -1,12 +1,14 @@
 // isouq (internal): what the volume sources share (VolumeSources.h; docs/inputs.md). Dense
-// sources (raw scans, fields, formulas) are read as z-slices through a SliceSource and made
-// sparse by sparsify(); each source type lives in its own file.
+// sources (raw scans, fields, formulas, and the scans with headers: NIfTI, NRRD, TIFF stacks,
+// DICOM series) are read as z-slices through a SliceSource and made sparse by sparsify(); each
+// source type lives in its own file.
 #pragma once
 
 #include "isouq/VolumeSources.h"
 
 #include <openvdb/openvdb.h>
 
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -47,7 +49,40 @@ double otsuOfGrid(const openvdb::FloatGrid& grid);
 LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
     openvdb::util::NullInterrupter* interrupter);
 
+/// Sample types of the scan formats, decoded to float by decodeSamples (ScanSource.cc).
+enum class SampleType { UInt8, Int8, UInt16, Int16, UInt32, Int32, UInt64, Int64, Float32, Float64 };
+std::size_t sampleBytes(SampleType type);
+const char* toString(SampleType type); ///< "uint8", "int16", "float32", ...
+
+/// out[i] = slope * v_i + inter for @a n samples at @a bytes stored in the file's byte order
+/// (@a bigEndian), in double, then rounded to float (NIfTI scl_slope/scl_inter, DICOM rescale).
+void decodeSamples(const char* bytes, std::size_t n, SampleType type, bool bigEndian, double slope,
+    double inter, float* out);
+
+/// The largest dimension a dense source may have (OpenVDB's 32-bit index space, less a leaf).
+constexpr std::uint64_t kMaxDim = std::numeric_limits<std::int32_t>::max() - kBlock;
+
+/// A scan with a header (NIfTI, NRRD, TIFF, DICOM): the isovalue (given, else Otsu), the sparse
+/// grid, its name and its index-to-world affine @a indexToWorld (row-major, column-vector
+/// convention, as Mesh::indexToWorld: world = M (i, j, k, 1)). @a geometry says where the affine
+/// came from ("sform", "space directions", ...); @a what is the description's start.
+/// @throw InputError if the affine is not finite or singular, or as buildDense.
+LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const std::string& name,
+    const std::array<double, 16>& indexToWorld, const std::string& geometry, const std::string& what,
+    openvdb::util::NullInterrupter* interrupter);
+
+/// Refuses the .raw-only flags for a scan that has its own header; @a spacing too unless the
+/// format takes it from the command line (TIFF).
+void rejectRawFlags(const VolumeRequest& request, const std::string& format, bool spacingAllowed);
+
 LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // RawSource.cc
+LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NiftiSource.cc
+LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NrrdSource.cc
+LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // TiffSource.cc
+/// A folder holding .tif/.tiff files (else a folder is read as a DICOM series).
+bool isTiffFolder(const std::string& path);
+LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // DicomSource.cc
+
 LoadedVolume loadVdb(const VolumeRequest& request);                                                // VdbSource.cc
 /// A field: or formula: input sampled at n^3 points (FieldSource.cc).
 LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const VolumeRequest& request,

@@ -62,6 +62,9 @@ double otsuOfSource(SliceSource& source)
             }
         }
     }
+    if (!(range.min < range.max))
+        throw InputError("constant data (every value is " + fmt(range.min) + "): no surface and no default "
+                         "isovalue; nothing to mesh");
     return otsuThreshold(histogram, range.min, range.max);
 }
 
@@ -75,6 +78,13 @@ double otsuOfGrid(const openvdb::FloatGrid& grid)
     std::array<std::uint64_t, 256> histogram{};
     for (auto it = grid.cbeginValueOn(); it; ++it) {
         if (std::isfinite(*it)) histogram[histogramBin(*it, range.min, range.max)] += it.getVoxelCount();
+    }
+    if (!(range.min < range.max)) {
+        // One active value: the surface is where it meets the background, halfway between them.
+        const float background = grid.background();
+        if (std::isfinite(background) && background != range.min) return 0.5 * (range.min + double(background));
+        throw InputError("constant grid '" + grid.getName() + "' (every value is " + fmt(range.min) +
+                         "): no surface and no default isovalue; nothing to mesh");
     }
     return otsuThreshold(histogram, range.min, range.max);
 }

@@ -63,9 +63,6 @@ private:
     const std::string& mPath;
 };
 
-/// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
-/// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
-/// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
 /// The metadata types OpenVDB reads as sizeof(T) bytes whatever the file says (TypedMetadata of
 /// a number, vector or matrix). Strings and the others (__delayedload, ...) read what they announce.
 bool fixedSizeMetadata(const std::string& type)
@@ -80,6 +77,9 @@ bool fixedSizeMetadata(const std::string& type)
     return sFixed.count(type) != 0;
 }
 
+/// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
+/// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
+/// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
 void walkMetadata(BoundedReader& r)
 {
     for (std::uint32_t i = 0, n = r.pod<std::uint32_t>(); i < n; ++i) {
@@ -174,6 +174,7 @@ LoadedVolume loadVdb(const VolumeRequest& request)
         file.open(/*delayLoad=*/false);
         const openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
         std::string chosen;
+        bool found = false; // a grid may be unnamed ("")
         for (const auto& meta : *metas) {
             const bool scalar = meta->isType<openvdb::FloatGrid>() || meta->isType<openvdb::DoubleGrid>();
             if (request.gridName.empty() ? scalar : meta->getName() == request.gridName) {
@@ -183,10 +184,20 @@ LoadedVolume loadVdb(const VolumeRequest& request)
                         + describeGrids(*metas));
                 }
                 chosen = meta->getName();
+                found = true;
                 break;
             }
         }
-        if (chosen.empty()) {
+        if (!found && request.allowEmpty && !request.gridName.empty()) {
+            file.close();
+            volume.grid = openvdb::FloatGrid::create(0.0f);
+            volume.grid->setName(request.gridName);
+            volume.isovalue = request.isovalue.value_or(0.0f);
+            volume.isovalueSource = "empty grid";
+            volume.description = fs::path(path).filename().string() + ": no grid '" + request.gridName + "' (empty)";
+            return volume;
+        }
+        if (!found) {
             throw InputError("'" + path + "' has no float grid"
                 + (request.gridName.empty() ? "" : " named '" + request.gridName + "'")
                 + "; grids found: " + describeGrids(*metas));
@@ -209,6 +220,9 @@ LoadedVolume loadVdb(const VolumeRequest& request)
     if (request.isovalue) {
         volume.isovalue = *request.isovalue;
         volume.isovalueSource = "given";
+    } else if (volume.grid->empty()) {
+        volume.isovalue = 0.0f;
+        volume.isovalueSource = "empty grid";
     } else if (levelSet) {
         volume.isovalue = 0.0f;
         volume.isovalueSource = "level set";

@@ -56,9 +56,15 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
     }
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
+    if (si::endsWith(input, ".nii") || si::endsWith(input, ".nii.gz")) return si::loadNifti(request, interrupter);
+    if (si::endsWith(input, ".nrrd") || si::endsWith(input, ".nhdr")) return si::loadNrrd(request, interrupter);
+    if (si::endsWith(input, ".tif") || si::endsWith(input, ".tiff")) return si::loadTiff(request, interrupter);
+    std::error_code ec;
+    if (std::filesystem::is_directory(input, ec))
+        return si::isTiffFolder(input) ? si::loadTiff(request, interrupter) : si::loadDicom(request, interrupter);
     si::fileSize(input); // a missing file says so first
     throw InputError("cannot tell what '" + input
-        + "' is: expected a .vdb or .raw file, field:NAME or formula:EXPR");
+        + "' is: expected a .vdb, .raw, .nii, .nii.gz, .nrrd, .nhdr, .tif or .tiff file, a folder of TIFF slices or of a DICOM series, field:NAME or formula:EXPR");
 }
 
 } // namespace

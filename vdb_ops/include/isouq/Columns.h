@@ -49,6 +49,7 @@ inline constexpr std::string_view kDistTrueLinear = "dist_true_linear", kDistTru
 inline constexpr std::string_view kDistMetroLinear = "dist_metro_linear";
 inline constexpr std::string_view kHidden = "hidden"; ///< per vertex and per face
 inline constexpr std::string_view kAbove = "above", kInBox = "in_box", kCompareDist = "compare_dist";
+inline constexpr std::string_view kRed = "red", kGreen = "green", kBlue = "blue", kQuality = "quality";
 inline constexpr std::string_view kVertexIndices = "vertex_indices";
 } // namespace col
 

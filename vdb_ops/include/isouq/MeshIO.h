@@ -1,5 +1,6 @@
-// isouq: binary PLY output and input of meshes with named attributes (SPEC §6, §8), and
-// atomic file writing. The exact header is documented in docs/ply-format.md.
+// isouq: mesh files with named attributes (SPEC §6, §8, §10 "Formats"): PLY out (binary
+// little-endian or ascii) and in, VTK XML PolyData (.vtp) out, and atomic file writing. The
+// exact layouts are documented in docs/ply-format.md and docs/vtp-format.md.
 #pragma once
 
 #include "isouq/Errors.h"
@@ -12,14 +13,23 @@
 
 namespace isouq {
 
-/// Header comments of a PLY file written by isouq, in this order (docs/ply-format.md):
-/// `comment isouq version V`, `comment isouq index_to_world m00 ... m33` (always),
-/// `comment isouq isovalue K`, `comment isouq method M`, then each extra comment.
-struct PlyOptions {
+/// What a mesh file records besides the mesh, in this order (docs/ply-format.md): PLY header
+/// comments `comment isouq version V`, `comment isouq index_to_world m00 ... m33` (always),
+/// `comment isouq isovalue K`, `comment isouq method M`, then each extra comment; the same
+/// lines are a .vtp's field data (docs/vtp-format.md).
+struct MeshFileOptions {
     std::string version;               ///< omitted when empty
     std::optional<float> isovalue;     ///< shortest text that reads back as the same float
     std::string method;                ///< e.g. "weno"; omitted when empty
     std::vector<std::string> comments; ///< each written as `comment <text>`, one line each
+};
+
+/// binary_little_endian (SPEC §6, the default) or ascii (what meshio 7 reads face columns
+/// from: docs/ply-format.md "Other readers").
+enum class PlyEncoding { BinaryLittleEndian, Ascii };
+
+struct PlyOptions : MeshFileOptions {
+    PlyEncoding encoding = PlyEncoding::BinaryLittleEndian;
 };
 
 /// What readPly found in the header besides the mesh.
@@ -32,14 +42,21 @@ struct PlyInfo {
     std::vector<std::string> comments; ///< all other comment lines, without "comment "
 };
 
-/// Writes @a mesh as binary little-endian PLY: `element vertex` with float x y z and every
-/// vertex column in table order, `element face` with `list uchar int vertex_indices` and
-/// every face column (PLY types float, int, uchar). Atomic: the data go to a temporary file
-/// in the target's directory that is renamed onto @a path only when complete, so an existing
-/// target is never clobbered by a failed write.
+/// Writes @a mesh as PLY (binary little-endian unless @a options.encoding says ascii):
+/// `element vertex` with float x y z and every vertex column in table order, `element face`
+/// with `list uchar int vertex_indices` and every face column (PLY types float, int, uint8).
+/// Atomic: the data go to a temporary file in the target's directory that is renamed onto
+/// @a path only when complete, so an existing target is never clobbered by a failed write.
 /// @throw IoError if the file cannot be written or the mesh is inconsistent (a column of the
 /// wrong length, a name with spaces, a vertex index out of range).
 void writePly(const Mesh& mesh, const std::string& path, const PlyOptions& options = {});
+
+/// Writes @a mesh as VTK XML PolyData (docs/vtp-format.md): positions as Points, triangles as
+/// Polys, every vertex column as point data and every face column as cell data under its own
+/// name and type (Float32, Int32, UInt8), raw binary appended; the header comments of
+/// writePly as field data (`index_to_world` as 16 Float64, the lines as strings). Atomic.
+/// @throw IoError as writePly.
+void writeVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options = {});
 
 /// Reads a PLY file (binary little or big endian, or ascii): x y z become positions, other
 /// scalar vertex and face properties become columns (float and double as float; uchar and
@@ -66,6 +83,8 @@ public:
 
     /// @throw IoError as writePly.
     void addPly(const Mesh& mesh, const std::string& path, const PlyOptions& options = {});
+    /// @throw IoError as writeVtp.
+    void addVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options = {});
     /// @throw IoError as writeTextFileAtomic.
     void addText(const std::string& path, const std::string& text);
     /// @throw IoError naming the first path that could not be renamed.

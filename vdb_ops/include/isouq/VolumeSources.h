@@ -1,8 +1,10 @@
 // isouq: turning the user's INPUT into a FloatGrid (SPEC §5, §8; docs/inputs.md).
 //
-// INPUT is one of `path.vdb`, `path.raw` (Open SciVis name `name_XxYxZ_dtype.raw`),
-// `field:NAME` (AnalyticFields.h) or `formula:EXPR` (muParser, variables x y z). Dense sources
-// (raw, field, formula) are streamed in slabs of 8 z-slices and made sparse on the way: an 8^3
+// INPUT is one of `path.vdb`, `path.raw` (Open SciVis name `name_XxYxZ_dtype.raw`), a scan
+// with a header (`.nii`, `.nii.gz`, `.nrrd`, `.nhdr`, a TIFF stack `.tif`/`.tiff` or a folder
+// of numbered TIFF slices, a folder of one DICOM series; SPEC §10 "Formats"), `field:NAME`
+// (AnalyticFields.h) or `formula:EXPR` (muParser, variables x y z). Dense sources (raw, scans,
+// field, formula) are streamed in slabs of 8 z-slices and made sparse on the way: an 8^3
 // block becomes an active leaf only where the surface can be (KeepBlocks), the rest inactive
 // tiles, so the grid's memory follows the surface, not the bounding box. Dense grids carry the
 // data box as grid metadata (GridMetadata.h).
@@ -41,15 +43,18 @@ enum class KeepBlocks {
 
 /// What the user asked for; CLI flags map 1:1.
 struct VolumeRequest {
-    std::string input;                        ///< path.vdb | path.raw | field:NAME | formula:EXPR
+    std::string input;                        ///< path.vdb | path.raw | scan | field:NAME | formula:EXPR
     std::string gridName;                     ///< --grid (vdb)
     std::optional<openvdb::Vec3i> dims;       ///< --dims X,Y,Z (raw)
     std::string dtype;                        ///< --dtype (raw): uint8 uint16 int16 float32 float64
-    std::optional<openvdb::Vec3d> spacing;    ///< --spacing (raw, default 1,1,1)
+    std::optional<openvdb::Vec3d> spacing;    ///< --spacing (raw and TIFF, default 1,1,1 or the TIFF's)
     std::optional<int> resolution;            ///< --resolution N (field default: the paper's; formula 64)
     std::optional<std::pair<double, double>> domain; ///< --domain LO,HI (formula, default -1,1)
     std::optional<float> isovalue;            ///< --isovalue
     KeepBlocks keep = KeepBlocks::Crossing;   ///< dense sources only
+    /// .vdb: a named grid that is absent gives an empty grid instead of an error (a frame of a
+    /// simulation cache where the grid is empty; SPEC §10 "Sequences").
+    bool allowEmpty = false;
 };
 
 struct LoadedVolume {
@@ -59,6 +64,9 @@ struct LoadedVolume {
     std::string isovalueSource; ///< "given", "level set", "SPEC §5 default", "formula default",
                                 ///< "Otsu (starting value)"
     std::string description;    ///< one line for the summary / progress
+    /// Where the grid's index-to-world map comes from for scans with a header ("NIfTI sform",
+    /// "NRRD space directions", "DICOM image position and orientation", ...); else empty.
+    std::string geometry;
     /// The exact field for field: and formula: inputs (world coordinates), else null.
     std::shared_ptr<const AnalyticField> truth;
     /// Dense sources: 8^3 blocks covering the data, and those kept as leaves.

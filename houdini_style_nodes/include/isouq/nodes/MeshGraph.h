@@ -14,19 +14,24 @@ struct MeshGraphRequest {
     nlohmann::json read = nlohmann::json::object();   ///< read_volume parameters (input, grid, isovalue, ...)
     nlohmann::json mesh = nlohmann::json::object();   ///< mesh parameters (method, linear_only)
     nlohmann::json hidden = nlohmann::json::object(); ///< hidden_features parameters (subdivisions, filter)
+    nlohmann::json write = nlohmann::json::object();  ///< write_ply parameters besides the path (format)
+    nlohmann::json color = nlohmann::json::object();  ///< color_map parameters; with `measure` set, both
+                                                      ///< meshes are coloured before they are written
     bool hiddenFeatures = false; ///< also recover hidden features (SPEC §4): the summary's `hidden` block
-    std::string output;          ///< the mesh (write_ply path)
+    std::string output;          ///< the mesh: write_vtp for a .vtp path, else write_ply
     std::string hiddenOutput;    ///< the hidden-feature mesh ("" for none; implies hiddenFeatures)
     std::string summaryPath;     ///< the SPEC §8 summary ("" for none)
 };
 
 /// Node ids of the graph meshGraph() builds: `load` (read_volume), `mesh`, `truth` (field: and
-/// formula: inputs, unless linear_only), `hidden`, `summary`, `write`, `write_hidden`,
-/// `write_summary`. The summary node's json output is the summary the command prints.
+/// formula: inputs, unless linear_only), `hidden`, `color` and `color_hidden` (color_map, with
+/// request.color), `summary`, `write`, `write_hidden`, `write_summary`. The summary node's json
+/// output is the summary the command prints.
 inline constexpr const char* kMeshGraphSummary = "summary";
 
 /// The graph document (the JSON `isouq run` reads; `--save-graph` writes it). Paths stay as
 /// given, so the saved graph run from the same folder writes the same files.
+/// @throw InputError if write_ply parameters are given for a .vtp output.
 nlohmann::json meshGraph(const MeshGraphRequest& request);
 
 } // namespace isouq::nodes

@@ -15,6 +15,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,9 @@ struct MeshData {
     std::string method;    ///< method of the positions ("linear", "weno", "blend", ...)
     bool uncertainty = false; ///< meshed with every method and estimate (MeshSettings)
     nlohmann::json info = nlohmann::json::object(); ///< e.g. "hidden", "threshold", "box" blocks
+
+    /// Everything but the mesh, for a node that makes a new mesh from this one.
+    MeshData withoutMesh() const { return {Mesh(), isovalue, method, uncertainty, info}; }
 };
 
 /// The value on one port: which member is set follows the port's type.
@@ -57,10 +61,31 @@ struct CookContext {
     openvdb::util::NullInterrupter* interrupter = nullptr;
     std::vector<std::string>* warnings = nullptr; ///< one line each, naming the skipped item
     std::vector<PendingWrite>* writes = nullptr;
+    /// Set by the runner (Graph.cc); a context without them (a cook called directly) gets
+    /// no timings, no destinations and copies.
+    std::function<nlohmann::json()> timingsOfUpstream;
+    std::function<std::vector<std::string>(const std::string& port)> destinationsOf;
+    std::function<std::shared_ptr<MeshData>(const std::string& port)> meshTaker;
+
     /// Cook times (ms) of the nodes upstream of this one, by node id, in running order.
-    std::function<nlohmann::json()> upstreamTimings;
+    nlohmann::json upstreamTimings() const
+    {
+        return timingsOfUpstream ? timingsOfUpstream() : nlohmann::json::object();
+    }
     /// The files that mesh writers (NodeType::meshWriter) make of what input @a port reads.
-    std::function<std::vector<std::string>(const std::string& port)> destinations;
+    std::vector<std::string> destinations(const std::string& port) const
+    {
+        return destinationsOf ? destinationsOf(port) : std::vector<std::string>();
+    }
+    /// The mesh on input @a port for this node to change and output: the upstream value itself
+    /// when no later node and no pending write needs it (no copy), else a copy.
+    std::shared_ptr<MeshData> takeMesh(const std::string& port) const
+    {
+        if (meshTaker) return meshTaker(port);
+        const NodeValue* v = input(port);
+        if (!v || !v->mesh) throw std::invalid_argument("input '" + port + "' holds no mesh");
+        return std::make_shared<MeshData>(*v->mesh);
+    }
 
     const NodeValue* input(const std::string& name) const
     {

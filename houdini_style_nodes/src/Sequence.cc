@@ -1,0 +1,259 @@
+// isouq nodes: frame sequences (Sequence.h; SPEC §10 "Sequences"; docs/sequences.md).
+#include "isouq/nodes/Sequence.h"
+
+#include "isouq/nodes/Graph.h"
+#include "isouq/nodes/Summary.h"
+
+#include <isouq/Columns.h>
+#include <isouq/MeshIO.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <exception>
+#include <filesystem>
+#include <mutex>
+#include <regex>
+#include <set>
+#include <thread>
+
+namespace isouq::nodes {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// "5-7, 12" for {5, 6, 7, 12}.
+std::string rangesText(const std::vector<int>& frames)
+{
+    std::string text;
+    for (std::size_t i = 0; i < frames.size();) {
+        std::size_t j = i;
+        while (j + 1 < frames.size() && frames[j + 1] == frames[j] + 1) ++j;
+        text += (text.empty() ? "" : ", ") + std::to_string(frames[i]) + (j > i ? "-" + std::to_string(frames[j]) : "");
+        i = j + 1;
+    }
+    return text;
+}
+
+/// The frames of @a pattern that exist: file names prefix, digits (at least width; no extra
+/// leading zeros), suffix.
+std::set<int> framesOnDisk(const FramePattern& pattern)
+{
+    const fs::path first(pattern.path(0));
+    const fs::path dir = first.parent_path().empty() ? fs::path(".") : first.parent_path();
+    const std::string head = fs::path(pattern.prefix + "#").filename().string();
+    const std::string stem = head.substr(0, head.size() - 1);
+    std::set<int> frames;
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(dir, ec)) {
+        const std::string name = entry.path().filename().string();
+        if (name.size() <= stem.size() + pattern.suffix.size() || name.compare(0, stem.size(), stem) != 0 ||
+            name.compare(name.size() - pattern.suffix.size(), pattern.suffix.size(), pattern.suffix) != 0)
+            continue;
+        const std::string digits = name.substr(stem.size(), name.size() - stem.size() - pattern.suffix.size());
+        if (digits.size() > 9 || int(digits.size()) < pattern.width ||
+            !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; }))
+            continue;
+        const int frame = std::stoi(digits);
+        if (fs::path(pattern.path(frame)).filename() == name) frames.insert(frame);
+    }
+    return frames;
+}
+
+/// The per-frame entry of the sequence summary from a frame's mesh summary.
+nlohmann::json frameEntry(int frame, const std::string& file, const std::string& output, const nlohmann::json& s)
+{
+    nlohmann::json e = {{"frame", frame}, {"file", file}, {"output", output}, {"vertices", s.at("vertices")},
+        {"triangles", s.at("triangles")}, {"components", s.at("components")},
+        {"boundary_edges", s.at("boundary_edges")}, {"empty", s.at("vertices").get<std::size_t>() == 0}};
+    for (const ColumnInfo& c : columnTable())
+        if (c.summary && s.contains(std::string(c.name))) e[std::string(c.name)] = s[std::string(c.name)];
+    if (s.contains("hidden"))
+        e["hidden"] = {{"components_before", s["hidden"].at("components_before")},
+            {"components_after", s["hidden"].at("components_after")}};
+    return e;
+}
+
+} // namespace
+
+std::string FramePattern::path(int frame) const
+{
+    std::string digits = std::to_string(frame < 0 ? -frame : frame);
+    if (int(digits.size()) < width) digits.insert(0, std::size_t(width) - digits.size(), '0');
+    return prefix + (frame < 0 ? "-" : "") + digits + suffix;
+}
+
+std::optional<FramePattern> parseFramePattern(const std::string& path)
+{
+    const std::size_t slash = path.find_last_of('/');
+    const std::size_t nameStart = slash == std::string::npos ? 0 : slash + 1;
+    const std::string name = path.substr(nameStart);
+    static const std::regex placeholder(R"(#+|%(0?)([0-9]*)d)");
+    std::smatch last;
+    for (auto it = std::sregex_iterator(name.begin(), name.end(), placeholder); it != std::sregex_iterator(); ++it)
+        last = *it;
+    if (last.empty()) {
+        if (std::regex_search(path.substr(0, nameStart), placeholder))
+            throw InputError("'" + path + "': the frame number (#### or %04d) must be in the file name, not a folder");
+        return std::nullopt;
+    }
+    FramePattern p;
+    p.prefix = path.substr(0, nameStart + std::size_t(last.position()));
+    p.suffix = path.substr(nameStart + std::size_t(last.position() + last.length()));
+    const std::string text = last.str();
+    p.width = text[0] == '#' ? int(text.size()) : (last[2].length() ? std::stoi(last[2].str()) : 1);
+    if (p.width < 1 || p.width > 9) throw InputError("'" + path + "': frame numbers are padded to 1-9 digits");
+    return p;
+}
+
+std::vector<int> parseFrameRange(const std::string& text)
+{
+    static const std::regex form(R"(^([0-9]{1,9})(?:-([0-9]{1,9})(?::([0-9]{1,9}))?)?$)");
+    std::smatch m;
+    if (!std::regex_match(text, m, form))
+        throw InputError("--frames '" + text + "': expected A, A-B or A-B:STEP (e.g. 1-240 or 1-240:2)");
+    const int first = std::stoi(m[1].str()), last = m[2].matched ? std::stoi(m[2].str()) : first,
+              step = m[3].matched ? std::stoi(m[3].str()) : 1;
+    if (last < first) throw InputError("--frames '" + text + "': the last frame is before the first");
+    if (step < 1) throw InputError("--frames '" + text + "': the step must be at least 1");
+    if ((last - first) / step >= 1000000) throw InputError("--frames '" + text + "': more than a million frames");
+    std::vector<int> frames;
+    for (int f = first; f <= last; f += step) frames.push_back(f);
+    return frames;
+}
+
+nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullInterrupter* interrupter,
+    const FrameCallback& onFrame, std::vector<std::string>* warnings)
+{
+    const auto start = std::chrono::steady_clock::now();
+    const std::string inputPattern = request.frame.read.value("input", std::string());
+    const std::optional<FramePattern> in = parseFramePattern(inputPattern);
+    if (!in) throw InputError("'" + inputPattern + "' is not a sequence (no #### or %04d in the file name)");
+    const std::optional<FramePattern> out = parseFramePattern(request.frame.output);
+    if (!out)
+        throw InputError("-o " + request.frame.output + ": the output of a sequence needs a frame placeholder "
+                         "too (#### or %04d), e.g. out/mesh.####.ply");
+    std::optional<FramePattern> hidden;
+    if (!request.frame.hiddenOutput.empty() && !(hidden = parseFramePattern(request.frame.hiddenOutput)))
+        throw InputError("--hidden-out " + request.frame.hiddenOutput + ": needs a frame placeholder (####)");
+    if (!request.frame.summaryPath.empty()) checkWritable(request.frame.summaryPath);
+
+    // The frames, and the missing ones listed before any work.
+    const std::set<int> onDisk = framesOnDisk(*in);
+    std::vector<int> range;
+    if (!request.frames.empty()) range = parseFrameRange(request.frames);
+    else if (!onDisk.empty())
+        for (int f = *onDisk.begin(); f <= *onDisk.rbegin(); ++f) range.push_back(f);
+    else throw InputError("no file matches '" + inputPattern + "'");
+    std::vector<int> frames, missing;
+    for (int f : range) (fs::is_regular_file(in->path(f)) ? frames : missing).push_back(f);
+    if (!missing.empty() && (!request.skipMissing || frames.empty()))
+        throw InputError("'" + inputPattern + "': frame" + (missing.size() > 1 ? "s " : " ") + rangesText(missing) +
+            " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) + " missing (" +
+            std::to_string(missing.size()) + " of " + std::to_string(range.size()) + ")" +
+            (frames.empty() ? "" : "; --skip-missing meshes the others"));
+
+    // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
+    for (const std::optional<FramePattern>* p : {&out, static_cast<const std::optional<FramePattern>*>(&hidden)})
+        if (*p && !fs::path((*p)->path(0)).parent_path().empty()) fs::create_directories(fs::path((*p)->path(0)).parent_path());
+
+    MeshGraphRequest base = request.frame;
+    base.read["allow_empty"] = true;
+    base.summaryPath.clear();
+    nlohmann::json isovalueSource = base.read.contains("isovalue") ? nlohmann::json("given") : nlohmann::json();
+
+    std::vector<nlohmann::json> entries(frames.size());
+    std::mutex mutex;
+    std::size_t done = 0;
+    nlohmann::json method;
+    // Meshes frame i (or reads it back with --resume); returns its mesh summary's isovalue source.
+    auto runFrame = [&](std::size_t i, const MeshGraphRequest& with) {
+        const int f = frames[i];
+        MeshGraphRequest r = with;
+        r.read["input"] = in->path(f);
+        r.output = out->path(f);
+        r.hiddenOutput = hidden ? hidden->path(f) : "";
+        nlohmann::json s, entry;
+        std::string source;
+        // Outputs appear atomically, so one that exists is complete; it is kept if it was made at
+        // this run's isovalue (its PLY header says which).
+        PlyInfo info;
+        if (request.resume && fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput)))
+            s = summarizeMesh(readPly(r.output, &info));
+        const bool keep = info.isovalue &&
+            (!with.read.contains("isovalue") || float(with.read["isovalue"].get<double>()) == *info.isovalue);
+        if (keep) {
+            s["isovalue"] = *info.isovalue;
+            source = "resumed";
+            entry = frameEntry(f, r.read["input"], r.output, s);
+            entry["resumed"] = true;
+        } else {
+            GraphResult result = runGraph(parseGraph(meshGraph(r)), interrupter);
+            s = result.outputs.at(kMeshGraphSummary).at("summary");
+            source = s.value("isovalue_source", std::string());
+            entry = frameEntry(f, r.read["input"], r.output, s);
+            std::lock_guard<std::mutex> lock(mutex);
+            if (warnings)
+                for (const std::string& w : result.warnings) warnings->push_back("frame " + std::to_string(f) + ": " + w);
+            method = s.value("method", nlohmann::json());
+        }
+        std::lock_guard<std::mutex> lock(mutex);
+        entries[i] = entry;
+        if (onFrame) onFrame(++done, frames.size(), f, entry);
+        return std::make_pair(source, s.value("isovalue", 0.0));
+    };
+
+    // One isovalue for every frame: given, or the default of the first frame that has data.
+    std::size_t next = 0;
+    nlohmann::json isovalue = base.read.contains("isovalue") ? base.read["isovalue"] : nlohmann::json();
+    while (isovalue.is_null() && next < frames.size()) {
+        const auto [source, k] = runFrame(next, base);
+        ++next;
+        if (source == "empty grid") continue;
+        isovalue = k;
+        isovalueSource = source + " of frame " + std::to_string(frames[next - 1]);
+        base.read["isovalue"] = k;
+        if (warnings)
+            warnings->push_back("isovalue " + nlohmann::json(k).dump() + " (" + isovalueSource.get<std::string>() +
+                ") for every frame; set it with --isovalue");
+    }
+
+    // The rest, frameJobs at a time; each frame is independent and uses every thread.
+    std::atomic<std::size_t> cursor{next};
+    std::exception_ptr failure;
+    std::atomic<bool> failed{false};
+    auto worker = [&] {
+        for (std::size_t i; !failed && (i = cursor++) < frames.size();) try {
+                runFrame(i, base);
+            } catch (...) {
+                std::lock_guard<std::mutex> lock(mutex);
+                if (!failure) failure = std::current_exception();
+                failed = true;
+            }
+    };
+    std::vector<std::thread> workers;
+    for (int j = 1; j < std::min<int>(request.frameJobs, int(frames.size() - std::min(next, frames.size()))); ++j)
+        workers.emplace_back(worker);
+    worker();
+    for (std::thread& t : workers) t.join();
+    if (failure) std::rethrow_exception(failure);
+
+    nlohmann::json totals = {{"frames", frames.size()}, {"vertices", 0}, {"triangles", 0}, {"empty", 0},
+        {"resumed", 0}, {"missing", missing}};
+    for (const nlohmann::json& e : entries) {
+        totals["vertices"] = totals["vertices"].get<std::size_t>() + e["vertices"].get<std::size_t>();
+        totals["triangles"] = totals["triangles"].get<std::size_t>() + e["triangles"].get<std::size_t>();
+        totals["empty"] = totals["empty"].get<int>() + int(e["empty"].get<bool>());
+        totals["resumed"] = totals["resumed"].get<int>() + int(e.value("resumed", false));
+    }
+    nlohmann::json summary = {{"frames", entries}, {"totals", totals}, {"isovalue", isovalue},
+        {"isovalue_source", isovalueSource}, {"method", method},
+        {"sequence", {{"input", inputPattern}, {"output", request.frame.output}, {"first", range.front()},
+                         {"last", range.back()}, {"step", range.size() > 1 ? range[1] - range[0] : 1}}}};
+    if (hidden) summary["sequence"]["hidden_output"] = request.frame.hiddenOutput;
+    summary["timings_ms"] = {{"total", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count()}};
+    if (!request.frame.summaryPath.empty()) writeTextFileAtomic(request.frame.summaryPath, summary.dump(2) + "\n");
+    return summary;
+}
+
+} // namespace isouq::nodes

@@ -1,0 +1,128 @@
+"""Frame sequences (SPEC §10 "Sequences", issue 11) through the real CLI, on caches written here
+with pyopenvdb: one isovalue for every frame, empty frames, missing frames, --resume, Ctrl-C,
+frames at once, and the sequence summary."""
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "blender_addon" / "isouq"))
+import ply_io  # noqa: E402  (the project's one PLY reader)
+
+vdb = pytest.importorskip("pyopenvdb")
+
+
+def fog_cache(folder, frames=range(1, 7), empty=(4,), absent=()):
+    """Mantaflow-like fog frames: a ball of density 0.2..1 (every active value above a low
+    threshold), background 0; `empty` frames have an empty grid, `absent` ones none at all."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for f in frames:
+        grid = vdb.FloatGrid(background=0.0)
+        grid.name = "density" if f not in absent else "flame"
+        grid.gridClass = vdb.GridClass.FOG_VOLUME
+        if f not in empty and f not in absent:
+            r = 3 + f
+            acc = grid.getAccessor()
+            for x in range(-r, r + 1):
+                for y in range(-r, r + 1):
+                    for z in range(-r, r + 1):
+                        d = (x * x + y * y + z * z) ** 0.5
+                        if d <= r:
+                            acc.setValueOn((x + f, y, z), max(0.2, 1.0 - d / (r + 1)))
+        vdb.write(str(folder / f"fluid_data_{f:04d}.vdb"), grids=[grid])
+
+
+def run(cli, *args, cwd, check=True):
+    proc = subprocess.run([cli, "mesh", *args, "--quiet"], cwd=cwd, capture_output=True, text=True, timeout=600)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def test_every_frame_meshed_closed_with_one_isovalue(isouq_cli, tmp_path):
+    fog_cache(tmp_path / "cache", absent=(5,))
+    run(isouq_cli, "cache/fluid_data_####.vdb", "--grid", "density", "-k", "0.05", "-o", "out/smoke.####.ply",
+        "--summary", "seq.json", cwd=tmp_path)
+    summary = json.loads((tmp_path / "seq.json").read_text())
+    assert [e["frame"] for e in summary["frames"]] == [1, 2, 3, 4, 5, 6]
+    assert summary["totals"]["empty"] == 2 and summary["isovalue"] == 0.05
+    for e in summary["frames"]:
+        mesh = ply_io.read_ply(str(tmp_path / e["output"]))
+        assert len(mesh.positions) == e["vertices"]
+        assert mesh.isovalue == pytest.approx(0.05)
+        if e["frame"] in (4, 5):  # an empty and an absent grid: an empty, valid mesh
+            assert e["empty"] and e["vertices"] == 0
+        else:  # every active value is above k: the surface is where they meet the background
+            assert e["vertices"] > 100 and e["boundary_edges"] == 0 and e["components"] == 1
+            assert set(e["err_est"]) >= {"min", "max", "mean", "rms"}
+    assert summary["frames"][5]["vertices"] > summary["frames"][0]["vertices"]  # the ball grows
+
+
+def test_default_isovalue_comes_from_the_first_frame_with_data(isouq_cli, tmp_path):
+    fog_cache(tmp_path / "cache", frames=range(1, 5), empty=(1,))
+    run(isouq_cli, "cache/fluid_data_%04d.vdb", "-o", "out/m.%04d.ply", "--summary", "s.json", cwd=tmp_path)
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["isovalue_source"].endswith("of frame 2")
+    headers = [ply_io.read_ply(str(tmp_path / e["output"])).isovalue for e in summary["frames"][1:]]
+    assert headers == pytest.approx([summary["isovalue"]] * 3)
+
+
+def test_missing_frames_are_listed_before_any_work(isouq_cli, tmp_path):
+    fog_cache(tmp_path / "cache", frames=[1, 2, 3, 6], empty=())
+    proc = run(isouq_cli, "cache/fluid_data_####.vdb", "-k", "0.1", "-o", "out/m.####.ply", cwd=tmp_path, check=False)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("isouq: error:") and "frames 4-5 of 1-6 missing" in lines[0]
+    assert not (tmp_path / "out").exists()
+    proc = run(isouq_cli, "cache/fluid_data_####.vdb", "--frames", "2-8:2", "-k", "0.1", "-o", "out/m.####.ply",
+               cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "4, 8" in proc.stderr
+    run(isouq_cli, "cache/fluid_data_####.vdb", "--skip-missing", "-k", "0.1", "-o", "out/m.####.ply", cwd=tmp_path)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [f"m.{f:04d}.ply" for f in (1, 2, 3, 6)]
+
+
+def test_resume_keeps_finished_frames_and_frame_jobs_change_nothing(isouq_cli, tmp_path):
+    fog_cache(tmp_path / "cache")
+    args = ["cache/fluid_data_####.vdb", "-k", "0.05", "--hidden-features", "--hidden-out", "hf/h.####.ply"]
+    run(isouq_cli, *args, "-o", "a/m.####.ply", "--summary", "a.json", cwd=tmp_path)
+    run(isouq_cli, *args, "-o", "b/m.####.ply", "--frame-jobs", "2", cwd=tmp_path)
+    for f in range(1, 7):
+        assert (tmp_path / f"a/m.{f:04d}.ply").read_bytes() == (tmp_path / f"b/m.{f:04d}.ply").read_bytes()
+    gone = tmp_path / "a/m.0003.ply"
+    gone.unlink()
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "a").iterdir()}
+    run(isouq_cli, *args, "-o", "a/m.####.ply", "--resume", "--summary", "r.json", cwd=tmp_path)
+    assert all(p.stat().st_mtime_ns == t for p, t in before.items())  # kept, not rewritten
+    assert gone.read_bytes() == (tmp_path / "b/m.0003.ply").read_bytes()
+    first, resumed = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "r.json"))
+    assert resumed["totals"]["resumed"] == 5
+    for a, r in zip(first["frames"], resumed["frames"]):
+        assert (a["vertices"], a["triangles"], a["components"]) == (r["vertices"], r["triangles"], r["components"])
+        assert a["err_est"] == r["err_est"]
+
+
+def test_ctrl_c_leaves_every_finished_frame_and_nothing_partial(isouq_cli, tmp_path):
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    for f in range(1, 13):  # level sets big enough that a frame takes a moment
+        grid = vdb.createLevelSetSphere(radius=40.0 + 3 * f, center=(0, 0, 0), voxelSize=0.5, halfWidth=3.0)
+        vdb.write(str(cache / f"ls.{f:04d}.vdb"), grids=[grid])
+    proc = subprocess.Popen([isouq_cli, "mesh", "cache/ls.####.vdb", "-o", "out/ls.####.ply", "--summary", "s.json",
+                             "--hidden-features"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    first = proc.stdout.readline()
+    assert first.startswith("frame 1: wrote")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    written = sorted((tmp_path / "out").iterdir())
+    assert 1 <= len(written) < 12
+    for p in written:
+        assert not p.name.startswith(".") and p.suffix == ".ply"
+        assert len(ply_io.read_ply(str(p)).positions) > 1000  # complete
+    assert not (tmp_path / "s.json").exists()
+    assert not any(".tmp" in name for _, _, files in os.walk(tmp_path) for name in files)
