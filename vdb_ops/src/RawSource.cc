@@ -134,6 +134,7 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
     }
 
     RawSlices source(path, Coord(int(d[0]), int(d[1]), int(d[2])), type);
+    checkLayersFit(source, request.input);
     std::string isovalueSource = "given";
     float isovalue = request.isovalue.value_or(0.0f);
     if (!request.isovalue) {

@@ -114,6 +114,7 @@ LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const s
         throw InputError("'" + request.input + "' has an unusable " + geometry + " (index-to-world rows " + text
             + "): it must be finite and invertible");
     }
+    checkLayersFit(source, request.input);
     std::string isovalueSource = "given";
     float isovalue = request.isovalue.value_or(0.0f);
     if (!request.isovalue) {

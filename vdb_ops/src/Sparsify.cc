@@ -5,6 +5,8 @@
 #include "isouq/GridMetadata.h"
 #include "isouq/Progress.h"
 
+#include "Memory.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -113,6 +115,19 @@ bool keepBlock(KeepBlocks rule, double lo, double hi, double k)
     case KeepBlocks::All: return true;
     }
     return true;
+}
+
+void checkLayersFit(const SliceSource& source, const std::string& input)
+{
+    // sparsify's window of kBlock + 2 kHalo slices and five per-column arrays, a source's own
+    // buffer of up to kBlock slices of 8-byte samples; a leaf pointer and a tile value per
+    // column of blocks.
+    const std::uint64_t slice = std::uint64_t(source.dims.x()) * std::uint64_t(source.dims.y());
+    const std::uint64_t columns = std::uint64_t((source.dims.x() + kBlock - 1) / kBlock) * ((source.dims.y() + kBlock - 1) / kBlock);
+    const std::uint64_t bytes = slice * ((kBlock + 2 * kHalo) * 4 + 4 * 4 + 8 + kBlock * 8) + columns * 12;
+    memory_internal::checkFits(bytes, "'" + input + "' (" + std::to_string(source.dims.x()) + "x"
+        + std::to_string(source.dims.y()) + "x" + std::to_string(source.dims.z())
+        + ", read in layers of " + std::to_string(kBlock) + " slices)");
 }
 
 /// Streams @a source in layers of 8 z-slices with a kHalo halo (a rolling window of at most

@@ -6,6 +6,8 @@
 // (1/XResolution, 1/YResolution, `spacing=`), else 1.
 #include "SourcesInternal.h"
 
+#include "Memory.h"
+
 #include <tiffio.h>
 
 #include <algorithm>
@@ -175,6 +177,8 @@ private:
             TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tw);
             TIFFGetField(tif, TIFFTAG_TILELENGTH, &th);
             if (tw == 0 || th == 0) fail(z);
+            memory_internal::checkFits(std::uint64_t(TIFFTileSize64(tif)), where(z) + " (tiles of " + std::to_string(tw)
+                + "x" + std::to_string(th) + " pixels)");
             std::vector<char> tile(TIFFTileSize(tif));
             if (tile.size() < std::size_t(tw) * th * bytes) fail(z);
             for (std::uint32_t y0 = 0; y0 < mPage.height; y0 += th) {
