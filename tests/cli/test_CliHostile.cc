@@ -292,26 +292,30 @@ std::string niftiHeader(std::int16_t nx, std::int16_t ny, std::int16_t nz, float
     return h;
 }
 
-/// A little-endian one-page TIFF of 8-bit grey with the given tags (tag, type, value), each one
-/// value; pixels @a pixels after the directory.
+/// A little-endian TIFF of @a pages 8-bit grey pages sharing the given tags (tag, type, value;
+/// one value each) and the pixels @a pixels after the directories; with @a loop the last
+/// directory points back to the first.
 std::string tiff(std::vector<std::tuple<std::uint16_t, std::uint16_t, std::uint32_t>> tags, const std::string& pixels,
-    bool loop = false)
+    int pages = 2, bool loop = false)
 {
     std::string t("II*\0\x08\0\0\0", 8);
-    const std::uint32_t ifd = 8, data = ifd + 2 + 12 * std::uint32_t(tags.size()) + 4;
-    put<std::uint16_t>(t, ifd, std::uint16_t(tags.size()));
+    const std::uint32_t size = 2 + 12 * std::uint32_t(tags.size()) + 4, data = 8 + std::uint32_t(pages) * size;
     std::sort(tags.begin(), tags.end());
-    for (std::size_t i = 0; i < tags.size(); ++i) {
-        auto [tag, type, value] = tags[i];
-        if (tag == 273 || tag == 324) value = data; // StripOffsets, TileOffsets: the pixels
-        const std::size_t at = ifd + 2 + 12 * i;
-        put<std::uint16_t>(t, at, tag);
-        put<std::uint16_t>(t, at + 2, type);
-        put<std::uint32_t>(t, at + 4, 1);
-        if (type == 3) put<std::uint16_t>(t, at + 8, std::uint16_t(value));
-        else put<std::uint32_t>(t, at + 8, value);
+    for (int p = 0; p < pages; ++p) {
+        const std::uint32_t ifd = 8 + std::uint32_t(p) * size;
+        put<std::uint16_t>(t, ifd, std::uint16_t(tags.size()));
+        for (std::size_t i = 0; i < tags.size(); ++i) {
+            auto [tag, type, value] = tags[i];
+            if (tag == 273 || tag == 324) value = data; // StripOffsets, TileOffsets: the pixels
+            const std::size_t at = ifd + 2 + 12 * i;
+            put<std::uint16_t>(t, at, tag);
+            put<std::uint16_t>(t, at + 2, type);
+            put<std::uint32_t>(t, at + 4, 1);
+            if (type == 3) put<std::uint16_t>(t, at + 8, std::uint16_t(value));
+            else put<std::uint32_t>(t, at + 8, value);
+        }
+        put<std::uint32_t>(t, ifd + size - 4, p + 1 < pages ? ifd + size : loop ? 8 : 0); // the next directory
     }
-    put<std::uint32_t>(t, data - 4, loop ? ifd : 0); // the next directory: none, or this one again
     return t + pixels;
 }
 
@@ -403,6 +407,11 @@ TEST_CASE("CLI hostile: NIfTI headers that lie", "[cli][hostile][nifti]")
         writeFile(dir / "offset.nii", niftiHeader(2, 2, 2, 1e9f) + std::string(16, '\1'));
         requireRefused(runTimed("mesh offset.nii -q -o out.ply", dir), "truncated", {out});
     }
+    SECTION("one slice: no cell, nothing to mesh")
+    {
+        writeFile(dir / "slice.nii", niftiHeader(4, 4, 1) + std::string(32, '\1'));
+        requireRefused(runTimed("mesh slice.nii -k 1 -q -o out.ply", dir), "nothing to mesh", {out});
+    }
     SECTION("a negative dimension")
     {
         writeFile(dir / "negative.nii", niftiHeader(-5, 2, 2) + std::string(64, '\1'));
@@ -489,6 +498,10 @@ TEST_CASE("CLI hostile: no output may replace a file an input reads", "[cli][hos
         requireRefused(runTimed("mesh scan.nhdr -k 60 -q " + args, dir), "input", {dir / "x.ply"});
         CHECK(readFile(dir / "mesh.vtp") == ramp());
     }
+    writeFile(dir / "ramp_6x5x4_uint8.raw", ramp());
+    requireRefused(runTimed("mesh ramp_6x5x4_uint8.raw -k 60 -q -o x.ply --save-graph ramp_6x5x4_uint8.raw", dir),
+        "input", {dir / "x.ply"});
+    CHECK(readFile(dir / "ramp_6x5x4_uint8.raw") == ramp());
     fs::create_directories(dir / "series");
     writeFile(dir / "series" / "a.ply", dicomSlice("1.2.3.9", 0));
     writeFile(dir / "series" / "b.ply", dicomSlice("1.2.3.9", 2));
@@ -510,7 +523,7 @@ TEST_CASE("CLI hostile: TIFF directories that lie", "[cli][hostile][tiff]")
     };
     SECTION("a page of 2^30 x 2^30 pixels in 200 bytes: refused before allocating")
     {
-        writeFile(dir / "huge.tif", tiff(with({{256, 4, 1u << 30}, {257, 4, 1u << 30}, {273, 4, 0}, {278, 4, 1},
+        writeFile(dir / "huge.tif", tiff(with({{256, 4, 1u << 30}, {257, 4, 1u << 30}, {273, 4, 0}, {278, 4, 1u << 30},
                                           {279, 4, 1u << 30}}), std::string(64, '\1')));
         requireRefused(runTimed("mesh huge.tif -q -o out.ply", dir), "memory available", {out});
     }
@@ -520,12 +533,18 @@ TEST_CASE("CLI hostile: TIFF directories that lie", "[cli][hostile][tiff]")
                                            {324, 4, 0}, {325, 4, 256}}), std::string(256, '\1')));
         requireRefused(runTimed("mesh tiles.tif -q -o out.ply", dir, "ISOUQ_MEMORY_LIMIT_MB=256"), "memory available", {out});
     }
+    SECTION("one page: a 2-D image has no cell")
+    {
+        writeFile(dir / "flat.tif", tiff(with({{256, 4, 8}, {257, 4, 8}, {273, 4, 0}, {278, 4, 8}, {279, 4, 64}}),
+                                        std::string(64, '\1'), 1));
+        requireRefused(runTimed("mesh flat.tif -k 1 -q -o out.ply", dir), "nothing to mesh", {out});
+    }
     SECTION("a directory chain that loops back on itself")
     {
         std::string pixels;
         for (int i = 0; i < 64; ++i) pixels += char(i * 4);
         writeFile(dir / "loop.tif", tiff(with({{256, 4, 8}, {257, 4, 8}, {273, 4, 0}, {278, 4, 8}, {279, 4, 64}}),
-                                        pixels, /*loop=*/true));
+                                        pixels, 2, /*loop=*/true));
         requireRefused(runTimed("mesh loop.tif -k 100 -q -o out.ply", dir), "loop.tif", {out});
     }
     requireNoTemporaries(dir);

@@ -122,8 +122,13 @@ public:
                 else if (!(p == mPage)) mismatch(z, p);
                 ++z;
             } while (TIFFReadDirectory(mStack.get()));
-            // The chain of pages ends at a damaged or missing directory: not a shorter stack.
+            // The chain of pages ends at a damaged, missing or looping directory (libtiff stops
+            // at a loop without an error): not a shorter stack.
             if (!tLastTiffError.empty()) fail(z);
+            if (!TIFFLastDirectory(mStack.get())) {
+                throw InputError("cannot read " + where(z) + ": the directory of page " + std::to_string(z - 1)
+                    + " points to one that cannot be read or was read before");
+            }
             dims = Coord(int(mPage.width), int(mPage.height), z);
         } else {
             for (std::size_t z = 0; z < mFiles.size(); ++z) {
