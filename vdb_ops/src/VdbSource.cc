@@ -2,6 +2,7 @@
 // file layout (SPEC §8; docs/inputs.md).
 #include "SourcesInternal.h"
 
+#include <openvdb/io/DelayedLoadMetadata.h>
 #include <openvdb/io/File.h>
 
 #include <cctype>
@@ -39,6 +40,7 @@ public:
     }
     void skip(std::uint64_t n) { need(n); seek(mPos + n); }
     std::uint64_t position() const { return mPos; }
+    std::uint64_t size() const { return mSize; }
     void seek(std::uint64_t pos)
     {
         mPos = pos;
@@ -77,6 +79,45 @@ bool fixedSizeMetadata(const std::string& type)
     return sFixed.count(type) != 0;
 }
 
+/// OpenVDB's delayed-load table (DelayedLoadMetadata::readValue, written into every grid by
+/// OpenVDB 10): a leaf count; the per-leaf masks as a byte count and that many blosc bytes, or 0
+/// and one raw byte per leaf; the per-leaf compressed sizes the same way (8 raw bytes per leaf),
+/// or 0xffffffff for none; bytes after these are skipped. OpenVDB allocates the arrays, the
+/// buffers and the blosc header's uncompressed size unchecked, and blosc reads as many bytes as
+/// its header says (a 12 KB file asked for 4 GiB, found by fuzz_vdb). So: the parts fit the
+/// announced size, each blosc part holds its 16-byte header, which says the part's own sizes
+/// (or OpenVDB's padding), and the leaves fit the file (each stores at least its 64-byte value mask).
+void walkDelayedLoad(BoundedReader& r, std::uint32_t bytes)
+{
+    const std::uint64_t end = r.position() + bytes;
+    const auto fail = [&](const std::string& what) {
+        r.fail("the delayed-load table (" + std::to_string(bytes) + " bytes) " + what);
+    };
+    const std::uint32_t leaves = r.pod<std::uint32_t>();
+    if (std::uint64_t(leaves) * 64 > r.size()) fail("has " + std::to_string(leaves) + " leaves");
+    for (const std::uint64_t elementBytes : {1u, 8u}) {
+        const std::uint32_t n = r.pod<std::uint32_t>();
+        if (elementBytes == 8 && n == 0xffffffffu) break; // no compressed sizes
+        const std::uint64_t raw = leaves * elementBytes, stored = n ? n : raw;
+        if (r.position() + stored > end) fail("runs past its end");
+        if (n) {
+            if (n < 16) fail("holds a blosc part without its header");
+            r.pod<std::uint32_t>(); // versions, flags, type size
+            const std::uint32_t uncompressed = r.pod<std::uint32_t>();
+            r.pod<std::uint32_t>(); // block size
+            const std::uint32_t compressed = r.pod<std::uint32_t>();
+            // OpenVDB pads a part shorter than 128 bytes to 128 before blosc (StreamCompression.cc).
+            const bool padded = raw < 128 && uncompressed == 128;
+            if ((uncompressed != raw && !padded) || compressed > n) fail("holds a blosc part of other sizes than its own");
+            r.skip(n - 16);
+        } else {
+            r.skip(raw);
+        }
+    }
+    if (r.position() > end) fail("runs past its end");
+    r.seek(end);
+}
+
 /// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
 /// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
 /// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
@@ -88,6 +129,10 @@ void walkMetadata(BoundedReader& r)
         const std::uint32_t bytes = r.pod<std::uint32_t>();
         if (fixedSizeMetadata(type) && openvdb::Metadata::createMetadata(type)->size() != bytes) {
             r.fail("metadata of type " + type + " holds " + std::to_string(bytes) + " bytes");
+        }
+        if (type == openvdb::io::DelayedLoadMetadata::staticTypeName() && bytes > 0) {
+            walkDelayedLoad(r, bytes);
+            continue;
         }
         r.skip(bytes);
     }
