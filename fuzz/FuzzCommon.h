@@ -13,7 +13,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <system_error>
+#include <vector>
 
 namespace isouq::fuzz {
 
@@ -44,6 +46,39 @@ inline std::string writeTemp(const std::string& name, const std::uint8_t* data, 
     return path;
 }
 
+/// What separates the files of a folder (a DICOM series, TIFF slices, a NRRD header and its
+/// data file) inside one fuzz input; the targets' dictionaries hold it.
+inline constexpr std::string_view kNextFile = "ISOUQ-NEXT-FILE";
+
+/// @a data split at every kNextFile, at most @a maxParts parts (the last keeps the rest).
+inline std::vector<std::string_view> splitFiles(const std::uint8_t* data, std::size_t size, std::size_t maxParts)
+{
+    std::vector<std::string_view> parts;
+    std::string_view rest(reinterpret_cast<const char*>(data), size);
+    for (std::size_t at; parts.size() + 1 < maxParts && (at = rest.find(kNextFile)) != std::string_view::npos;) {
+        parts.push_back(rest.substr(0, at));
+        rest.remove_prefix(at + kNextFile.size());
+    }
+    parts.push_back(rest);
+    return parts;
+}
+
+/// Writes @a parts as files @a stem0@a ext, @a stem1@a ext, ... in a fresh folder tempDir()/@a
+/// folder and returns the folder.
+inline std::string writeFolder(const std::string& folder, const std::vector<std::string_view>& parts,
+    const std::string& stem, const std::string& ext)
+{
+    const std::filesystem::path dir = tempDir() / folder;
+    std::error_code ec;
+    std::filesystem::remove_all(dir, ec);
+    std::filesystem::create_directory(dir);
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+        writeTemp(folder + "/" + stem + std::to_string(i) + ext, reinterpret_cast<const std::uint8_t*>(parts[i].data()),
+            parts[i].size());
+    }
+    return dir.string();
+}
+
 /// Runs @a body; the errors the contract allows end the run quietly, anything else escapes.
 template <typename Body>
 void expectingErrors(Body&& body)
@@ -57,3 +92,12 @@ void expectingErrors(Body&& body)
 }
 
 } // namespace isouq::fuzz
+
+// libFuzzer calls this once. ASan's -rss_limit_mb=2048 also caps one malloc at 2 GiB, so the
+// memory checks of the readers and the mesher must see a budget below that
+// (ISOUQ_MEMORY_LIMIT_MB, docs/hardening.md); a caller's own value is kept.
+extern "C" int LLVMFuzzerInitialize(int*, char***)
+{
+    ::setenv("ISOUQ_MEMORY_LIMIT_MB", "1024", /*overwrite=*/0);
+    return 0;
+}

@@ -1,11 +1,11 @@
 // Writes small valid .vdb files into the folder given as argv[1]: seeds for fuzz_vdb that
 // reach past the header into every part of a grid (docs/hardening.md). A level-set sphere, a
 // fog ball, a double grid, a grid with an active tile, half-float storage, each compression
-// (none, zip, blosc, active mask), two grids in one file and file metadata.
+// (active mask, zip, blosc), two grids in one file and file metadata.
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
-#include <openvdb/tools/LevelSetSphere.h>
 
+#include <cmath>
 #include <cstdio>
 #include <string>
 
@@ -34,8 +34,20 @@ int main(int argc, char** argv)
     const std::string dir = argv[1];
     using namespace openvdb;
 
-    FloatGrid::Ptr sphere = tools::createLevelSetSphere<FloatGrid>(4.0f, Vec3f(0.0f), 1.0f, 2.0f);
+    // Every grid lies inside one root child (coordinates 0..4095): each root child costs 8 KiB
+    // of masks, and inputs are capped at 64 KiB.
+    FloatGrid::Ptr sphere = FloatGrid::create(2.0f); // a narrow-band level set, radius 4, band 2
     sphere->setName("surface");
+    sphere->setGridClass(GRID_LEVEL_SET);
+    {
+        auto acc = sphere->getAccessor();
+        for (int i = 12; i <= 28; ++i)
+            for (int j = 12; j <= 28; ++j)
+                for (int k = 12; k <= 28; ++k) {
+                    const float d = std::sqrt(float((i - 20) * (i - 20) + (j - 20) * (j - 20) + (k - 20) * (k - 20))) - 4.0f;
+                    if (std::abs(d) < 2.0f) acc.setValue(Coord(i, j, k), d);
+                }
+    }
 
     FloatGrid::Ptr fog = FloatGrid::create(0.0f);
     fog->setName("density");
@@ -45,7 +57,7 @@ int main(int argc, char** argv)
         for (int i = -3; i <= 3; ++i)
             for (int j = -3; j <= 3; ++j)
                 for (int k = -3; k <= 3; ++k)
-                    if (i * i + j * j + k * k <= 9) acc.setValue(Coord(i, j, k), 1.0f - float(i * i + j * j + k * k) / 9.0f);
+                    if (i * i + j * j + k * k <= 9) acc.setValue(Coord(i + 16, j + 16, k + 16), 1.0f - float(i * i + j * j + k * k) / 9.0f);
     }
     fog->setTransform(math::Transform::createLinearTransform(0.5));
 
@@ -67,13 +79,15 @@ int main(int argc, char** argv)
     vectors->setName("velocity");
     vectors->tree().setValue(Coord(0), Vec3s(1, 2, 3));
 
-    write(dir + "/sphere_none.vdb", {sphere}, io::COMPRESS_NONE);
+    // COMPRESS_NONE would store every internal-node value (128 KiB and more): zip instead.
+    write(dir + "/sphere_mask.vdb", {sphere}, io::COMPRESS_ACTIVE_MASK);
     write(dir + "/sphere_zip.vdb", {sphere}, io::COMPRESS_ZIP | io::COMPRESS_ACTIVE_MASK);
+    write(dir + "/sphere_zip_nomask.vdb", {sphere}, io::COMPRESS_ZIP);
     write(dir + "/sphere_blosc.vdb", {sphere}, io::COMPRESS_BLOSC | io::COMPRESS_ACTIVE_MASK);
     write(dir + "/fog_mask.vdb", {fog}, io::COMPRESS_ACTIVE_MASK, true);
-    write(dir + "/doubles.vdb", {doubles}, io::COMPRESS_NONE);
+    write(dir + "/doubles.vdb", {doubles}, io::COMPRESS_ACTIVE_MASK);
     write(dir + "/tile.vdb", {tile}, io::COMPRESS_ACTIVE_MASK);
-    write(dir + "/half.vdb", {half}, io::COMPRESS_NONE);
+    write(dir + "/half.vdb", {half}, io::COMPRESS_ACTIVE_MASK);
     write(dir + "/vector_then_fog.vdb", {vectors, fog}, io::COMPRESS_ZIP, true);
     return 0;
 }

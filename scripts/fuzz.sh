@@ -10,15 +10,17 @@ root=$PWD
 seconds=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(fuzz_raw fuzz_vdb fuzz_formula fuzz_graph fuzz_ply)
+[ ${#targets[@]} -gt 0 ] || targets=(fuzz_raw fuzz_vdb fuzz_formula fuzz_graph fuzz_ply fuzz_nifti fuzz_nrrd fuzz_tiff fuzz_dicom)
 data=${ISOUQ_DATA_DIR:-$root/../shared/data}
 build=${ISOUQ_FUZZ_BUILD:-$root/build-fuzz}
 export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$(dirname "$root")}
 
-scripts/install-deps.sh --fuzz
-CC=clang-14 CXX=clang++-14 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DISOUQ_BUILD_FUZZERS=ON -DISOUQ_BUILD_TESTS=OFF -DISOUQ_BUILD_BENCH=OFF >/dev/null
-cmake --build "$build" -j"${JOBS:-2}" --target "${targets[@]}" make_vdb_seeds isouq
+if [ "${ISOUQ_FUZZ_NO_BUILD:-0}" != 1 ]; then # 1: run the fuzzers already built
+  scripts/install-deps.sh --fuzz
+  CC=clang-14 CXX=clang++-14 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DISOUQ_BUILD_FUZZERS=ON -DISOUQ_BUILD_TESTS=OFF -DISOUQ_BUILD_BENCH=OFF >/dev/null
+  cmake --build "$build" -j"${JOBS:-2}" --target "${targets[@]}" make_vdb_seeds make_nrrd_seeds isouq
+fi
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:allocator_may_return_null=0:abort_on_error=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1:suppressions=$root/scripts/sanitizers/ubsan.supp}
@@ -43,6 +45,10 @@ seed() { # TARGET: fills $work/corpus/TARGET
     done ;;
   fuzz_graph)
     cp -f examples/*.json "$c"/ ;;
+  fuzz_nrrd)
+    "$build/fuzz/make_nrrd_seeds" "$c" ;;
+  fuzz_nifti | fuzz_tiff | fuzz_dicom) # nibabel, tifffile, pydicom (scripts/install-deps.sh)
+    /usr/bin/python3 fuzz/make_scan_seeds.py "$work/scan-seeds" && cp -f "$work/scan-seeds/$t"/* "$c"/ || true ;;
   fuzz_ply)
     local cli=$build/houdini_style_nodes/isouq
     ASAN_OPTIONS=detect_leaks=0 "$cli" mesh field:sphere --resolution 6 -o "$c/sphere.ply" >/dev/null 2>&1 || true
@@ -50,8 +56,9 @@ seed() { # TARGET: fills $work/corpus/TARGET
       --hidden-out "$c/teardrop_hidden.ply" -o "$c/teardrop.ply" >/dev/null 2>&1 || true ;;
   esac
 }
-max_len() { case $1 in fuzz_raw) echo 40000 ;; fuzz_vdb) echo 65536 ;; fuzz_ply) echo 16384 ;; *) echo 8192 ;; esac; }
-dict() { case $1 in fuzz_ply) echo fuzz/dict/ply.dict ;; fuzz_formula) echo fuzz/dict/formula.dict ;; fuzz_graph) echo fuzz/dict/graph.dict ;; esac; }
+max_len() { case $1 in fuzz_raw) echo 40000 ;; fuzz_vdb) echo 65536 ;; fuzz_ply | fuzz_nifti | fuzz_nrrd | fuzz_tiff) echo 16384 ;;
+  fuzz_dicom) echo 32768 ;; *) echo 8192 ;; esac; }
+dict() { case $1 in fuzz_raw | fuzz_vdb) ;; *) echo "fuzz/dict/${1#fuzz_}.dict" ;; esac; }
 
 status=0
 declare -A execs result
@@ -85,7 +92,7 @@ for t in "${targets[@]}"; do
     result[$t]=clean
   else
     result[$t]="FAILED: exit $rc, oom/timeout/crash ${counts:-?}, $found inputs in $work/artifacts/$t"
-    grep -E 'ERROR: |SUMMARY: |runtime error' "$work/$t.log" | sort | uniq -c | sort -rn | head -20 >&2
+    { grep -E 'ERROR: |SUMMARY: |runtime error' "$work/$t.log" || true; } | sort | uniq -c | sort -rn | head -20 >&2
     status=1
   fi
 done

@@ -7,6 +7,7 @@
 #include "ValidateCommand.h"
 
 #include <isouq/MeshIO.h>
+#include <isouq/VolumeSources.h>
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
 #include <isouq/nodes/Sequence.h>
@@ -23,6 +24,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <vector>
 #include <unistd.h>
 
 namespace {
@@ -107,10 +109,18 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     const nlohmann::json doc = isouq::nodes::meshGraph(request);
     const isouq::nodes::Graph graph = isouq::nodes::parseGraph(doc);
     if (!saveGraph.empty()) {
+        namespace fs = std::filesystem;
+        const auto same = [&](const std::string& p) {
+            return !p.empty() && fs::weakly_canonical(fs::absolute(p)) == fs::weakly_canonical(fs::absolute(saveGraph));
+        };
         for (const std::string& out : {request.output, request.hiddenOutput, request.summaryPath})
-            if (!out.empty() && std::filesystem::weakly_canonical(std::filesystem::absolute(out)) ==
-                                    std::filesystem::weakly_canonical(std::filesystem::absolute(saveGraph)))
-                throw isouq::InputError("--save-graph " + saveGraph + " is also an output; give it its own path");
+            if (same(out)) throw isouq::InputError("--save-graph " + saveGraph + " is also an output; give it its own path");
+        // Nor the input, or a file it reads (a NRRD data file, a slice of a folder).
+        const std::string input = request.read.value("input", std::string());
+        std::vector<std::string> inputs = isouq::volumeInputFiles(input);
+        inputs.push_back(input);
+        for (const std::string& in : inputs)
+            if (same(in)) throw isouq::InputError("--save-graph " + saveGraph + " is the input '" + in + "'; refusing to overwrite an input");
         isouq::checkWritable(saveGraph);
     }
     const isouq::nodes::GraphResult result = runWithProgress(graph, quiet);

@@ -3,6 +3,7 @@
 
 #include <isouq/MeshIO.h>
 #include <isouq/Progress.h>
+#include <isouq/VolumeSources.h>
 
 #include <algorithm>
 #include <chrono>
@@ -211,13 +212,17 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
         const fs::path r = fs::weakly_canonical(fs::absolute(p), ec);
         return ec ? fs::absolute(p).lexically_normal().string() : r.string();
     };
+    // An input is also what it reads besides itself: a NRRD header's data files, the slices
+    // of a folder (volumeInputFiles).
     std::map<std::string, std::string> inputFiles;
     for (const GraphNode& n : graph.nodes)
         for (const ParmSpec& spec : n.type->parms) {
+            if (spec.type != ParmType::String || !n.parms.isSet(spec.token)) continue;
+            const std::string value = n.parms.getString(spec.token);
             std::error_code ec;
-            if (spec.type == ParmType::String && n.parms.isSet(spec.token) &&
-                fs::is_regular_file(n.parms.getString(spec.token), ec))
-                inputFiles.emplace(resolved(n.parms.getString(spec.token)), n.id);
+            if (fs::is_regular_file(value, ec)) inputFiles.emplace(resolved(value), n.id);
+            if (fs::exists(value, ec))
+                for (const std::string& file : volumeInputFiles(value)) inputFiles.emplace(resolved(file), n.id);
         }
     std::map<std::string, std::string> writers;
     for (const GraphNode& n : graph.nodes)
@@ -262,7 +267,7 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
     nlohmann::json doc;
     try {
         doc = nlohmann::json::parse(text);
-    } catch (const nlohmann::json::parse_error& e) {
+    } catch (const nlohmann::json::exception& e) { // parse_error, or out_of_range for 1e999
         throw GraphError(path + ": not valid JSON: " + e.what());
     }
     try {

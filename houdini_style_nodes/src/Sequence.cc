@@ -6,12 +6,14 @@
 
 #include <isouq/Columns.h>
 #include <isouq/MeshIO.h>
+#include <isouq/VolumeSources.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <exception>
 #include <filesystem>
+#include <map>
 #include <mutex>
 #include <regex>
 #include <set>
@@ -21,6 +23,14 @@ namespace isouq::nodes {
 namespace {
 
 namespace fs = std::filesystem;
+
+/// @a path with symlinks, "..", "." resolved, so two spellings of one file compare equal.
+std::string resolvedPath(const std::string& path)
+{
+    std::error_code ec;
+    const fs::path r = fs::weakly_canonical(fs::absolute(path), ec);
+    return ec ? fs::absolute(path).lexically_normal().string() : r.string();
+}
 
 /// "5-7, 12" for {5, 6, 7, 12}.
 std::string rangesText(const std::vector<int>& frames)
@@ -101,7 +111,7 @@ std::optional<FramePattern> parseFramePattern(const std::string& path)
     p.prefix = path.substr(0, nameStart + std::size_t(last.position()));
     p.suffix = path.substr(nameStart + std::size_t(last.position() + last.length()));
     const std::string text = last.str();
-    p.width = text[0] == '#' ? int(text.size()) : (last[2].length() ? std::stoi(last[2].str()) : 1);
+    p.width = text[0] == '#' ? int(text.size()) : last[2].length() > 2 ? 0 : last[2].length() ? std::stoi(last[2].str()) : 1;
     if (p.width < 1 || p.width > 9) throw InputError("'" + path + "': frame numbers are padded to 1-9 digits");
     return p;
 }
@@ -142,8 +152,12 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     const std::set<int> onDisk = framesOnDisk(*in);
     std::vector<int> range;
     if (!request.frames.empty()) range = parseFrameRange(request.frames);
-    else if (!onDisk.empty())
+    else if (!onDisk.empty()) {
+        if (*onDisk.rbegin() - *onDisk.begin() >= 1000000)
+            throw InputError("'" + inputPattern + "': the frames on disk span " + std::to_string(*onDisk.begin()) + "-" +
+                std::to_string(*onDisk.rbegin()) + ", more than a million; give --frames");
         for (int f = *onDisk.begin(); f <= *onDisk.rbegin(); ++f) range.push_back(f);
+    }
     else throw InputError("no file matches '" + inputPattern + "'");
     std::vector<int> frames, missing;
     for (int f : range) (fs::is_regular_file(in->path(f)) ? frames : missing).push_back(f);
@@ -152,6 +166,26 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
             " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) + " missing (" +
             std::to_string(missing.size()) + " of " + std::to_string(range.size()) + ")" +
             (frames.empty() ? "" : "; --skip-missing meshes the others"));
+
+    // No output of any frame may be an input of any frame (or what it reads, volumeInputFiles)
+    // or another output: frame 1 of out_1### would replace input frame 1001 before it is read.
+    std::map<std::string, std::string> inputs, outputs;
+    for (int f : frames) {
+        inputs.emplace(resolvedPath(in->path(f)), in->path(f));
+        for (const std::string& file : volumeInputFiles(in->path(f))) inputs.emplace(resolvedPath(file), file);
+    }
+    auto addOutput = [&](const std::string& flag, const std::string& path) {
+        const std::string r = resolvedPath(path);
+        if (auto i = inputs.find(r); i != inputs.end())
+            throw InputError(flag + " " + path + " is the input '" + i->second + "'; refusing to overwrite an input");
+        if (auto [o, fresh] = outputs.emplace(r, path); !fresh)
+            throw InputError(flag + " " + path + " is also the output '" + o->second + "'");
+    };
+    for (int f : frames) {
+        addOutput("-o", out->path(f));
+        if (hidden) addOutput("--hidden-out", hidden->path(f));
+    }
+    if (!request.frame.summaryPath.empty()) addOutput("--summary", request.frame.summaryPath);
 
     // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
     for (const std::optional<FramePattern>* p : {&out, static_cast<const std::optional<FramePattern>*>(&hidden)})

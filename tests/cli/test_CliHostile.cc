@@ -5,16 +5,20 @@
 
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
 
 #include <catch2/catch.hpp>
 
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstring>
 #include <limits>
 #include <thread>
+#include <tuple>
 
 using namespace isouq_test;
 
@@ -257,4 +261,371 @@ TEST_CASE("CLI hostile: SIGTERM, SIGHUP and a second SIGINT clean up", "[cli][ho
         CHECK_FALSE(fs::exists(tmp.path / "big.json"));
         requireNoTemporaries(tmp.path);
     }
+}
+
+// ---- Scans with headers, folders and sequences (SPEC §10 "Formats", "Sequences", "Errors") ----
+// Files written here byte by byte from the formats' documents (NIfTI-1 header, TIFF 6.0, DICOM
+// PS3.5/PS3.10, teem's NRRD format page), so each can lie in exactly one field.
+
+namespace {
+
+template <typename T>
+void put(std::string& bytes, std::size_t at, T value)
+{
+    if (bytes.size() < at + sizeof(T)) bytes.resize(at + sizeof(T), '\0');
+    std::memcpy(&bytes[at], &value, sizeof(T));
+}
+
+/// A NIfTI-1 single file (.nii) header, little-endian, int16, voxel sizes only, with dims
+/// @a nx @a ny @a nz, vox_offset 352 and no data.
+std::string niftiHeader(std::int16_t nx, std::int16_t ny, std::int16_t nz, float voxOffset = 352.0f)
+{
+    std::string h(352, '\0');
+    put<std::int32_t>(h, 0, 348);                  // sizeof_hdr
+    const std::int16_t dim[8] = {3, nx, ny, nz, 1, 1, 1, 1};
+    for (int i = 0; i < 8; ++i) put<std::int16_t>(h, 40 + 2 * i, dim[i]);
+    put<std::int16_t>(h, 70, 4);                   // datatype DT_INT16
+    put<std::int16_t>(h, 72, 16);                  // bitpix
+    for (int i = 0; i < 8; ++i) put<float>(h, 76 + 4 * i, 1.0f); // pixdim
+    put<float>(h, 108, voxOffset);
+    h.replace(344, 4, std::string("n+1\0", 4));
+    return h;
+}
+
+/// A little-endian TIFF of @a pages 8-bit grey pages sharing the given tags (tag, type, value;
+/// one value each) and the pixels @a pixels after the directories; with @a loop the last
+/// directory points back to the first.
+std::string tiff(std::vector<std::tuple<std::uint16_t, std::uint16_t, std::uint32_t>> tags, const std::string& pixels,
+    int pages = 2, bool loop = false)
+{
+    std::string t("II*\0\x08\0\0\0", 8);
+    const std::uint32_t size = 2 + 12 * std::uint32_t(tags.size()) + 4, data = 8 + std::uint32_t(pages) * size;
+    std::sort(tags.begin(), tags.end());
+    for (int p = 0; p < pages; ++p) {
+        const std::uint32_t ifd = 8 + std::uint32_t(p) * size;
+        put<std::uint16_t>(t, ifd, std::uint16_t(tags.size()));
+        for (std::size_t i = 0; i < tags.size(); ++i) {
+            auto [tag, type, value] = tags[i];
+            if (tag == 273 || tag == 324) value = data; // StripOffsets, TileOffsets: the pixels
+            const std::size_t at = ifd + 2 + 12 * i;
+            put<std::uint16_t>(t, at, tag);
+            put<std::uint16_t>(t, at + 2, type);
+            put<std::uint32_t>(t, at + 4, 1);
+            if (type == 3) put<std::uint16_t>(t, at + 8, std::uint16_t(value));
+            else put<std::uint32_t>(t, at + 8, value);
+        }
+        put<std::uint32_t>(t, ifd + size - 4, p + 1 < pages ? ifd + size : loop ? 8 : 0); // the next directory
+    }
+    return t + pixels;
+}
+
+/// One DICOM element, explicit VR little endian (PS3.5 7.1.2), the value padded to even length.
+std::string element(std::uint16_t group, std::uint16_t elem, const char* vr, std::string value)
+{
+    if (value.size() % 2) value += (std::string(vr) == "UI" || std::string(vr) == "OB") ? '\0' : ' ';
+    std::string e;
+    put(e, 0, group);
+    put(e, 2, elem);
+    e += vr;
+    const std::string longForm[] = {"OB", "OW", "SQ", "UN", "UT"};
+    if (std::find(std::begin(longForm), std::end(longForm), vr) != std::end(longForm)) {
+        e += std::string(2, '\0');
+        put<std::uint32_t>(e, 8, std::uint32_t(value.size()));
+    } else {
+        put<std::uint16_t>(e, 6, std::uint16_t(value.size()));
+    }
+    return e + value;
+}
+
+std::string us(std::uint16_t v) { return std::string(reinterpret_cast<const char*>(&v), 2); }
+
+/// A CT slice of @a rows x @a columns uint16 at z = @a z of series @a series (PS3.10 file:
+/// preamble, DICM, file meta information, data set); @a pixels defaults to a ramp.
+std::string dicomSlice(const std::string& series, double z, std::uint16_t rows = 4, std::uint16_t columns = 5,
+    std::string pixels = "")
+{
+    if (pixels.empty())
+        for (int i = 0; i < rows * columns; ++i) pixels += us(std::uint16_t(i * 10 + z * 3));
+    const std::string ct = "1.2.840.10008.5.1.4.1.1.2", uid = "1.2.3.4." + std::to_string(int(z * 10));
+    std::string meta = element(0x0002, 0x0001, "OB", std::string("\0\1", 2)) + element(0x0002, 0x0002, "UI", ct) +
+        element(0x0002, 0x0003, "UI", uid) + element(0x0002, 0x0010, "UI", "1.2.840.10008.1.2.1");
+    std::string length;
+    put<std::uint32_t>(length, 0, std::uint32_t(meta.size()));
+    const std::string zText = std::to_string(z);
+    return std::string(128, '\0') + "DICM" + element(0x0002, 0x0000, "UL", length) + meta +
+        element(0x0008, 0x0016, "UI", ct) + element(0x0008, 0x0018, "UI", uid) + element(0x0008, 0x0060, "CS", "CT") +
+        element(0x0020, 0x000d, "UI", "1.2.3") + element(0x0020, 0x000e, "UI", series) +
+        element(0x0020, 0x0032, "DS", "0\\0\\" + zText) + element(0x0020, 0x0037, "DS", "1\\0\\0\\0\\1\\0") +
+        element(0x0028, 0x0002, "US", us(1)) + element(0x0028, 0x0004, "CS", "MONOCHROME2") +
+        element(0x0028, 0x0010, "US", us(rows)) + element(0x0028, 0x0011, "US", us(columns)) +
+        element(0x0028, 0x0030, "DS", "1\\1") + element(0x0028, 0x0100, "US", us(16)) +
+        element(0x0028, 0x0101, "US", us(16)) + element(0x0028, 0x0102, "US", us(15)) +
+        element(0x0028, 0x0103, "US", us(0)) + element(0x7fe0, 0x0010, "OW", pixels);
+}
+
+/// A detached NRRD header for a 6x5x4 uchar volume whose `data file:` is @a dataFile.
+std::string nhdr(const std::string& dataFile, const std::string& encoding = "raw", const std::string& sizes = "6 5 4")
+{
+    return "NRRD0004\ntype: uchar\ndimension: 3\nsizes: " + sizes + "\nencoding: " + encoding + "\ndata file: " +
+        dataFile + "\n";
+}
+
+/// 6x5x4 uchar ramp: a surface at 60.
+std::string ramp()
+{
+    std::string v;
+    for (int i = 0; i < 6 * 5 * 4; ++i) v += char(i);
+    return v;
+}
+
+/// Runs the CLI under `timeout 60`, so a hang fails the test instead of the suite.
+CliResult runTimed(const std::string& args, const fs::path& dir, const std::string& env = "")
+{
+    return runCli("-c " + quote(env + " exec timeout 60 " + std::string(ISOUQ_CLI) + " " + args), dir, "bash");
+}
+
+} // namespace
+
+TEST_CASE("CLI hostile: NIfTI headers that lie", "[cli][hostile][nifti]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    const fs::path out = dir / "out.ply";
+    SECTION("dimensions of 32000^2 in a 60-byte .nii.gz: refused before allocating")
+    {
+        writeFile(dir / "huge.nii", niftiHeader(32000, 32000, 3) + std::string(64, '\0'));
+        REQUIRE(std::system(("gzip -n " + quote(dir / "huge.nii")).c_str()) == 0);
+        requireRefused(runTimed("mesh huge.nii.gz -q -o out.ply", dir, "ISOUQ_MEMORY_LIMIT_MB=512"), "memory available", {out});
+    }
+    SECTION("a header announcing more data than the file holds")
+    {
+        writeFile(dir / "short.nii", niftiHeader(64, 64, 64) + std::string(100, '\1'));
+        requireRefused(runTimed("mesh short.nii -q -o out.ply", dir), "truncated", {out});
+    }
+    SECTION("a vox_offset past the end of the file")
+    {
+        writeFile(dir / "offset.nii", niftiHeader(2, 2, 2, 1e9f) + std::string(16, '\1'));
+        requireRefused(runTimed("mesh offset.nii -q -o out.ply", dir), "truncated", {out});
+    }
+    SECTION("one slice: no cell, nothing to mesh")
+    {
+        writeFile(dir / "slice.nii", niftiHeader(4, 4, 1) + std::string(32, '\1'));
+        requireRefused(runTimed("mesh slice.nii -k 1 -q -o out.ply", dir), "nothing to mesh", {out});
+    }
+    SECTION("a negative dimension")
+    {
+        writeFile(dir / "negative.nii", niftiHeader(-5, 2, 2) + std::string(64, '\1'));
+        requireRefused(runTimed("mesh negative.nii -q -o out.ply", dir), "negative.nii", {out});
+    }
+    requireNoTemporaries(dir);
+}
+
+TEST_CASE("CLI hostile: detached NRRD data files", "[cli][hostile][nrrd]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    const fs::path out = dir / "out.ply";
+    fs::create_directories(dir / "scan");
+    writeFile(dir / "scan" / "ramp.raw", ramp());
+    SECTION("a FIFO: refused at once, not waited on")
+    {
+        REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
+        writeFile(dir / "scan" / "fifo.nhdr", nhdr("fifo"));
+        requireRefused(runTimed("mesh scan/fifo.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+    }
+    SECTION("/dev/zero")
+    {
+        writeFile(dir / "scan" / "zero.nhdr", nhdr("/dev/zero"));
+        requireRefused(runTimed("mesh scan/zero.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+    }
+    SECTION("a folder")
+    {
+        writeFile(dir / "scan" / "folder.nhdr", nhdr("."));
+        requireRefused(runTimed("mesh scan/folder.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+    }
+    SECTION("a missing file")
+    {
+        writeFile(dir / "scan" / "missing.nhdr", nhdr("nowhere.raw"));
+        requireRefused(runTimed("mesh scan/missing.nhdr -k 60 -q -o out.ply", dir), "missing", {out});
+    }
+    SECTION("a LIST with a FIFO among the files")
+    {
+        REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
+        writeFile(dir / "scan" / "list.nhdr", nhdr("LIST 2") + "ramp.raw\nfifo\n");
+        requireRefused(runTimed("mesh scan/list.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+    }
+    SECTION("a pattern with %s and %n (teem would hand it to sprintf)")
+    {
+        writeFile(dir / "scan" / "format.nhdr", nhdr("%s%n%d 1 4 1 2"));
+        requireRefused(runTimed("mesh scan/format.nhdr -k 60 -q -o out.ply", dir), "must hold one %d", {out});
+    }
+    SECTION("a pattern naming two billion files")
+    {
+        writeFile(dir / "scan" / "many.nhdr", nhdr("s%03d.raw -2000000000 2000000000 1 2"));
+        requireRefused(runTimed("mesh scan/many.nhdr -k 60 -q -o out.ply", dir), "name 1 to 1000000 files", {out});
+    }
+    SECTION("a data file outside the header's folder is read (the NRRD format allows any path)")
+    {
+        writeFile(dir / "outside.raw", ramp());
+        writeFile(dir / "scan" / "up.nhdr", nhdr("../outside.raw"));
+        REQUIRE(runTimed("mesh scan/up.nhdr -k 60 -q -o out.ply", dir).status == 0);
+        CHECK(fs::file_size(out) > 0);
+    }
+    SECTION("sizes of 10^6 x 10^6 in gzip: refused before allocating")
+    {
+        writeFile(dir / "scan" / "big.gz", "");
+        writeFile(dir / "scan" / "big.nhdr", nhdr("big.gz", "gzip", "1000000 1000000 2"));
+        requireRefused(runTimed("mesh scan/big.nhdr -k 60 -q -o out.ply", dir), "memory available", {out});
+    }
+    SECTION("ascii data of 20000^3 that teem would decode whole: refused before allocating")
+    {
+        writeFile(dir / "scan" / "text.txt", "1 2 3\n");
+        writeFile(dir / "scan" / "text.nhdr", nhdr("text.txt", "ascii", "20000 20000 20000"));
+        requireRefused(runTimed("mesh scan/text.nhdr -k 60 -q -o out.ply", dir), "memory available", {out});
+    }
+    requireNoTemporaries(dir);
+}
+
+TEST_CASE("CLI hostile: no output may replace a file an input reads", "[cli][hostile]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    writeFile(dir / "mesh.vtp", ramp()); // a NRRD data file may have any name
+    writeFile(dir / "scan.nhdr", nhdr("mesh.vtp"));
+    for (const std::string& args : {std::string("-o mesh.vtp"), std::string("-o x.ply --summary mesh.vtp"),
+             std::string("-o x.ply --save-graph ./mesh.vtp")}) {
+        INFO(args);
+        requireRefused(runTimed("mesh scan.nhdr -k 60 -q " + args, dir), "input", {dir / "x.ply"});
+        CHECK(readFile(dir / "mesh.vtp") == ramp());
+    }
+    writeFile(dir / "ramp_6x5x4_uint8.raw", ramp());
+    requireRefused(runTimed("mesh ramp_6x5x4_uint8.raw -k 60 -q -o x.ply --save-graph ramp_6x5x4_uint8.raw", dir),
+        "input", {dir / "x.ply"});
+    CHECK(readFile(dir / "ramp_6x5x4_uint8.raw") == ramp());
+    fs::create_directories(dir / "series");
+    writeFile(dir / "series" / "a.ply", dicomSlice("1.2.3.9", 0));
+    writeFile(dir / "series" / "b.ply", dicomSlice("1.2.3.9", 2));
+    const std::string slice = readFile(dir / "series" / "a.ply");
+    requireRefused(runTimed("mesh series -k 30 -q -o series/a.ply", dir), "input", {});
+    CHECK(readFile(dir / "series" / "a.ply") == slice);
+}
+
+TEST_CASE("CLI hostile: TIFF directories that lie", "[cli][hostile][tiff]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    const fs::path out = dir / "out.ply";
+    using Tags = std::vector<std::tuple<std::uint16_t, std::uint16_t, std::uint32_t>>;
+    const Tags grey = {{258, 3, 8}, {259, 3, 1}, {262, 3, 1}, {277, 3, 1}};
+    auto with = [&](Tags extra) {
+        extra.insert(extra.end(), grey.begin(), grey.end());
+        return extra;
+    };
+    SECTION("a page of 2^30 x 2^30 pixels in 200 bytes: refused before allocating")
+    {
+        writeFile(dir / "huge.tif", tiff(with({{256, 4, 1u << 30}, {257, 4, 1u << 30}, {273, 4, 0}, {278, 4, 1u << 30},
+                                          {279, 4, 1u << 30}}), std::string(64, '\1')));
+        requireRefused(runTimed("mesh huge.tif -q -o out.ply", dir), "memory available", {out});
+    }
+    SECTION("tiles of 65536^2 on a 16x16 page: refused before allocating")
+    {
+        writeFile(dir / "tiles.tif", tiff(with({{256, 4, 16}, {257, 4, 16}, {322, 4, 65536}, {323, 4, 65536},
+                                           {324, 4, 0}, {325, 4, 256}}), std::string(256, '\1')));
+        requireRefused(runTimed("mesh tiles.tif -q -o out.ply", dir, "ISOUQ_MEMORY_LIMIT_MB=256"), "memory available", {out});
+    }
+    SECTION("one page: a 2-D image has no cell")
+    {
+        writeFile(dir / "flat.tif", tiff(with({{256, 4, 8}, {257, 4, 8}, {273, 4, 0}, {278, 4, 8}, {279, 4, 64}}),
+                                        std::string(64, '\1'), 1));
+        requireRefused(runTimed("mesh flat.tif -k 1 -q -o out.ply", dir), "nothing to mesh", {out});
+    }
+    SECTION("a directory chain that loops back on itself")
+    {
+        std::string pixels;
+        for (int i = 0; i < 64; ++i) pixels += char(i * 4);
+        writeFile(dir / "loop.tif", tiff(with({{256, 4, 8}, {257, 4, 8}, {273, 4, 0}, {278, 4, 8}, {279, 4, 64}}),
+                                        pixels, 2, /*loop=*/true));
+        requireRefused(runTimed("mesh loop.tif -k 100 -q -o out.ply", dir), "loop.tif", {out});
+    }
+    requireNoTemporaries(dir);
+}
+
+TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    const fs::path out = dir / "out.ply";
+    fs::create_directories(dir / "series");
+    for (int k = 0; k < 3; ++k) writeFile(dir / "series" / ("s" + std::to_string(k)), dicomSlice("1.2.3.9", 2.0 * k));
+    SECTION("two series mixed in one folder")
+    {
+        writeFile(dir / "series" / "x0", dicomSlice("1.2.3.8", 0.5));
+        writeFile(dir / "series" / "x1", dicomSlice("1.2.3.8", 1.5));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "2 DICOM series", {out});
+    }
+    SECTION("a FIFO and a device among the slices: ignored, every slice read, nothing waited on")
+    {
+        REQUIRE(::mkfifo((dir / "series" / "a_fifo").c_str(), 0600) == 0);
+        fs::create_symlink("/dev/zero", dir / "series" / "b_zero");
+        const CliResult r = runTimed("mesh series -k 30 -q -o out.ply --summary s.json", dir);
+        REQUIRE(r.status == 0);
+        CHECK(readFile(dir / "s.json").find("DICOM series of 3 slices") != std::string::npos);
+    }
+    SECTION("rows and columns of 65535 with 40 bytes of pixels")
+    {
+        fs::remove_all(dir / "series");
+        fs::create_directories(dir / "series");
+        for (int k = 0; k < 2; ++k)
+            writeFile(dir / "series" / ("s" + std::to_string(k)), dicomSlice("1.2.3.9", k, 65535, 65535, std::string(40, '\1')));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "series", {out});
+    }
+    requireNoTemporaries(dir);
+}
+
+TEST_CASE("CLI hostile: sequence patterns and --frames", "[cli][hostile][sequence]")
+{
+    openvdb::initialize();
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    auto frame = [&](const std::string& name) {
+        auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(3.0f, openvdb::Vec3f(0), 0.5f);
+        writeGrid(dir / name, grid);
+    };
+    frame("s_0001.vdb");
+    frame("s_0002.vdb");
+    frame("s_1001.vdb");
+    const std::string kept = readFile(dir / "s_1001.vdb");
+    SECTION("--frames that are not A, A-B or A-B:STEP, or name no frame")
+    {
+        for (const std::string& frames : {"' 1-2'", "1--2", "2-1", "1-2:0", "99999999999", "1-2:", "-1-2"}) {
+            INFO("--frames " << frames);
+            requireRefused(runTimed("mesh s_####.vdb --frames " + frames + " -q -o o_####.ply", dir), "--frames", {});
+        }
+    }
+    SECTION("an output pattern that is the input pattern")
+    {
+        requireRefused(runTimed("mesh s_####.vdb --frames 1-2 -q -o s_%04d.vdb", dir), "input", {});
+    }
+    SECTION("an output of frame 1 that is the input of frame 1001")
+    {
+        requireRefused(runTimed("mesh s_####.vdb --frames 1-1001:1000 -q -o s_1###.vdb", dir), "input", {});
+        CHECK(readFile(dir / "s_1001.vdb") == kept);
+    }
+    SECTION("a summary that is an input frame")
+    {
+        requireRefused(runTimed("mesh s_####.vdb --frames 1-2 -q -o o_####.ply --summary s_0002.vdb", dir), "input",
+            {dir / "o_0001.ply"});
+    }
+    SECTION("a padding width of 11 digits")
+    {
+        requireRefused(runTimed("mesh s_%099999999999d.vdb -q -o o_####.ply", dir), "1-9 digits", {});
+    }
+    SECTION("frames on disk spanning a billion numbers")
+    {
+        frame("s_999999999.vdb");
+        requireRefused(runTimed("mesh s_####.vdb -q -o o_####.ply", dir), "give --frames", {});
+    }
+    CHECK(readFile(dir / "s_1001.vdb") == kept);
+    CHECK_FALSE(fs::exists(dir / "o_0001.ply"));
+    requireNoTemporaries(dir);
 }

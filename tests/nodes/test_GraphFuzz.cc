@@ -42,3 +42,14 @@ TEST_CASE("GraphFuzz: a description that is not a string is a GraphError", "[nod
     }
     CHECK(loadError("{\"description\": \"fine\", \"nodes\": []}").empty());
 }
+
+TEST_CASE("GraphFuzz: a number too large for a double is a GraphError", "[nodes][graph][fuzz]")
+{
+    // Was nlohmann::json::out_of_range 406 ("number overflow parsing '1e999'"): loadGraph
+    // caught only parse_error.
+    for (const char* number : {"1e999", "-1e999", "1e400"}) {
+        const std::string message = loadError(std::string("{\"nodes\": [], \"description\": ") + number + "}");
+        CHECK(message.find("not valid JSON") != std::string::npos);
+        CHECK(message.find('\n') == std::string::npos);
+    }
+}

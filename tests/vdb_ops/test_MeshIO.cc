@@ -84,7 +84,8 @@ std::string readOutcome(const std::string& path)
 template <typename T>
 bool sameBits(const std::vector<T>& a, const std::vector<T>& b)
 {
-    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0;
+    // memcmp of empty vectors would pass null pointers (UB, caught by UBSan's nonnull-attribute)
+    return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0);
 }
 
 bool sameColumns(const isouq::AttributeTable& a, const isouq::AttributeTable& b)

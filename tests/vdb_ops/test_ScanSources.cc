@@ -10,6 +10,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -125,4 +126,40 @@ TEST_CASE("ScanSources: bad NRRD headers and data are one-line InputErrors", "[s
     request.spacing.reset();
     request.input = (dir / "nothing.nrrd");
     CHECK_THAT(inputError(request), Contains("no such file"));
+}
+
+TEST_CASE("ScanSources: volumeInputFiles names what an input reads besides itself", "[sources][nrrd]")
+{
+    TempDir dir;
+    auto names = [](std::vector<std::string> files) {
+        std::vector<std::string> out;
+        for (const std::string& f : files) out.push_back(fs::path(f).lexically_normal().string());
+        std::sort(out.begin(), out.end());
+        return out;
+    };
+    const std::string head = "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n";
+    std::ofstream(dir / "one.nhdr") << head << "data file: sub/../d.raw\n";
+    CHECK(names(isouq::volumeInputFiles(dir / "one.nhdr")) == std::vector<std::string>{dir / "d.raw"});
+    std::ofstream(dir / "abs.nhdr") << head << "datafile: /tmp/x.raw\n";
+    CHECK(names(isouq::volumeInputFiles(dir / "abs.nhdr")) == std::vector<std::string>{"/tmp/x.raw"});
+    // teem's pattern form: FORMAT MIN MAX STEP [SUBDIM]; and LIST, one name per line to the end.
+    std::ofstream(dir / "pattern.nhdr") << head << "data file: s%02d.raw 3 -1 -2 2\n";
+    CHECK(names(isouq::volumeInputFiles(dir / "pattern.nhdr")) ==
+          std::vector<std::string>{dir / "s-1.raw", dir / "s01.raw", dir / "s03.raw"});
+    std::ofstream(dir / "list.nhdr") << head << "data file: LIST 2\na.raw\nb.raw\n";
+    CHECK(names(isouq::volumeInputFiles(dir / "list.nhdr")) == std::vector<std::string>{dir / "a.raw", dir / "b.raw"});
+    std::ofstream(dir / "attached.nrrd") << head << "\n" << std::string(8, '\0');
+    CHECK(isouq::volumeInputFiles(dir / "attached.nrrd").empty());
+    // A bad pattern is the reader's error; here it only names nothing.
+    std::ofstream(dir / "bad.nhdr") << head << "data file: %s%d 1 2 1\n";
+    CHECK(isouq::volumeInputFiles(dir / "bad.nhdr").empty());
+    isouq::VolumeRequest request;
+    request.input = dir / "bad.nhdr";
+    CHECK_THAT(inputError(request), Contains("must hold one %d"));
+    // A folder: its regular files (slices), not its subfolders.
+    fs::create_directories(dir.path / "series" / "sub");
+    std::ofstream(dir / "series/IM1") << "x";
+    std::ofstream(dir / "series/IM2") << "x";
+    CHECK(names(isouq::volumeInputFiles(dir / "series")) == std::vector<std::string>{dir / "series/IM1", dir / "series/IM2"});
+    CHECK(isouq::volumeInputFiles(dir / "nothing.vdb").empty());
 }

@@ -6,7 +6,6 @@
 // spacing, slice k along the step between the first and the last positions.
 #include "SourcesInternal.h"
 
-#include <gdcmDirectory.h>
 #include <gdcmImage.h>
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
@@ -152,17 +151,23 @@ LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrup
     gdcm::Trace::WarningOff();
     gdcm::Trace::ErrorOff();
     gdcm::Trace::DebugOff();
-    gdcm::Directory directory;
-    directory.Load(path, /*recursive=*/false);
+    // The folder's regular files (symlinks followed). Not gdcm::Directory: it stops listing at
+    // the first entry that is neither a file nor a folder (a FIFO, a device), which would mesh
+    // a shorter series, and a FIFO would block the reads below.
+    std::vector<std::string> listed;
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(path, ec))
+        if (entry.is_regular_file(ec)) listed.push_back(entry.path().string());
+    if (ec) throw InputError("cannot list the folder '" + path + "': " + ec.message());
+    std::sort(listed.begin(), listed.end());
     // Group the DICOM files by Series Instance UID (0020,000E); other files are ignored.
     const gdcm::Tag seriesTag(0x0020, 0x000e);
     gdcm::Scanner scanner;
     scanner.AddTag(seriesTag);
-    if (!scanner.Scan(directory.GetFilenames()))
-        throw InputError("cannot read the folder '" + path + "' as a DICOM series");
+    if (!scanner.Scan(listed)) throw InputError("cannot read the folder '" + path + "' as a DICOM series");
     // A file with the DICOM preamble that GDCM cannot parse is a damaged slice, not a stranger.
     const std::vector<std::string> keys = scanner.GetKeys();
-    for (const std::string& file : directory.GetFilenames()) {
+    for (const std::string& file : listed) {
         if (std::find(keys.begin(), keys.end(), file) != keys.end()) continue;
         char head[132] = {};
         std::ifstream in(file, std::ios::binary);

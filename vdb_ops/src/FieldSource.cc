@@ -64,6 +64,7 @@ LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const 
     if (n < 2) throw InputError("--resolution must be at least 2, got " + std::to_string(n));
     if (n > std::numeric_limits<std::int32_t>::max() - kBlock) throw InputError("--resolution is too large");
     FieldSlices source(*field, n);
+    checkLayersFit(source, request.input);
     LoadedVolume volume = buildDense(source, request,
         request.isovalue.value_or(float(field->isovalue)), interrupter);
     volume.isovalueSource = request.isovalue ? "given" : defaultSource;

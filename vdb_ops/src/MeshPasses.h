@@ -9,6 +9,7 @@
 #include "isouq/McTables.h"
 
 #include "BlockScratch.h"
+#include "Memory.h"
 #include "MeshVertices.h"
 
 #include <openvdb/thread/Threading.h>
@@ -173,31 +174,6 @@ inline std::optional<CoordBBox> meshedCellBox(const std::optional<CoordBBox>& da
     return box;
 }
 
-/// Bytes this process can still allocate: the kernel's MemAvailable, and under an address-space
-/// limit (ulimit -v) what is left of it; 0 if unknown.
-inline std::uint64_t availableMemory()
-{
-    std::uint64_t available = 0;
-    std::ifstream meminfo("/proc/meminfo");
-    for (std::string key; meminfo >> key;) {
-        std::uint64_t kib = 0;
-        meminfo >> kib;
-        if (key == "MemAvailable:") {
-            available = kib * 1024;
-            break;
-        }
-        meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
-    }
-    rlimit limit{};
-    std::uint64_t pages = 0;
-    if (::getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY && (std::ifstream("/proc/self/statm") >> pages)) {
-        const std::uint64_t used = pages * std::uint64_t(::sysconf(_SC_PAGESIZE));
-        const std::uint64_t left = limit.rlim_cur > used ? limit.rlim_cur - used : 1;
-        available = available ? std::min(available, left) : left;
-    }
-    return available;
-}
-
 /// Refuses, before allocating it, a mesh that needs more memory than there is (SPEC §10
 /// "Errors"): a small file can describe a huge surface (one active 4096^3 tile).
 inline void checkMeshFits(std::uint64_t vertices, std::uint64_t triangles, const MeshSettings& settings, bool provenance)
@@ -208,14 +184,9 @@ inline void checkMeshFits(std::uint64_t vertices, std::uint64_t triangles, const
     const std::uint64_t bytes = vertices * perVertex + triangles * 12;
     // Small meshes skip reading /proc/meminfo, a cost comparable to meshing a 32^3 grid.
     if (bytes < (std::uint64_t(16) << 20)) return;
-    const std::uint64_t available = availableMemory();
+    using memory_internal::gib;
+    const std::uint64_t available = memory_internal::availableMemory();
     if (available == 0 || bytes <= available) return;
-    const auto gib = [](std::uint64_t b) {
-        std::ostringstream os;
-        os.precision(3);
-        os << double(b) / double(1ull << 30);
-        return os.str();
-    };
     throw InputError("the mesh would have " + std::to_string(vertices) + " vertices and " +
         std::to_string(triangles) + " triangles, " + gib(bytes) + " GiB, more than the " + gib(available) +
         " GiB of memory available");

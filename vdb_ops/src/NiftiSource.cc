@@ -6,10 +6,16 @@
 
 #include <nifti2_io.h>
 
+#include <unistd.h>
+
+#include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <string>
 #include <vector>
 
 namespace isouq::sources_internal {
@@ -91,6 +97,53 @@ private:
     std::vector<char> mBuffer;
 };
 
+/// nifticlib prints some errors to stderr whatever its debug level ("** ERROR:
+/// nifti_convert_n1hdr2nim: bad dim[1]"), which would make a second error line (SPEC §8). Its
+/// header calls run with file descriptor 2 sent to a temporary file (one at a time: the
+/// descriptor is the process's); release() gives back stderr and what was printed.
+class StderrCapture {
+public:
+    StderrCapture() : mLock(sMutex)
+    {
+        std::fflush(stderr);
+        mFile = std::tmpfile();
+        mSaved = mFile ? ::dup(2) : -1;
+        if (mSaved < 0 || ::dup2(::fileno(mFile), 2) < 0) restore();
+    }
+    ~StderrCapture() { release(); }
+    StderrCapture(const StderrCapture&) = delete;
+    StderrCapture& operator=(const StderrCapture&) = delete;
+
+    /// Stderr back; what was printed meanwhile, control characters as blanks, trimmed.
+    std::string release()
+    {
+        if (!mFile) return mText;
+        std::fflush(stderr);
+        restore();
+        std::rewind(mFile);
+        for (int c; (c = std::fgetc(mFile)) != EOF && mText.size() < 400;) mText += std::iscntrl(c) ? ' ' : char(c);
+        std::fclose(mFile);
+        mFile = nullptr;
+        while (!mText.empty() && mText.back() == ' ') mText.pop_back();
+        return mText;
+    }
+
+private:
+    void restore()
+    {
+        if (mSaved >= 0) {
+            ::dup2(mSaved, 2);
+            ::close(mSaved);
+            mSaved = -1;
+        }
+    }
+    static inline std::mutex sMutex;
+    std::lock_guard<std::mutex> mLock;
+    std::FILE* mFile = nullptr;
+    int mSaved = -1;
+    std::string mText;
+};
+
 /// 1 or 2 from the header's first bytes (nifti_image::nifti_type says 1 for both).
 int niftiVersion(const std::string& path)
 {
@@ -118,8 +171,14 @@ LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrup
     const std::uint64_t size = fileSize(path);
     rejectRawFlags(request, "NIfTI", false);
     nifti_set_debug_level(0); // errors come back as one InputError, not nifticlib's stderr lines
+    StderrCapture capture;
     std::unique_ptr<nifti_image, NiftiFree> image(nifti_image_read(path.c_str(), /*read_data=*/0));
-    if (!image) throw InputError("'" + path + "' is not a readable NIfTI file (bad or truncated header)");
+    const std::string printed = capture.release();
+    if (!image) {
+        throw InputError("'" + path + "' is not a readable NIfTI file (bad or truncated header"
+            + (printed.empty() ? std::string() : ": nifticlib says " + printed) + ")");
+    }
+    if (!printed.empty()) std::fprintf(stderr, "%s\n", printed.c_str()); // not an error: as nifticlib meant it
     const nifti_image& nim = *image;
     const std::optional<SampleType> type = sampleTypeOf(nim.datatype);
     if (!type) {

@@ -6,18 +6,25 @@
 // else from `spacings` (1 where missing) and the origin 0.
 #include "SourcesInternal.h"
 
+#include "Memory.h"
+
 #include <teem/nrrd.h>
 #include <zlib.h>
 
 #include <unistd.h>
 
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <limits>
 #include <memory>
 #include <optional>
+#include <sstream>
+#include <vector>
 
 namespace isouq::sources_internal {
 namespace {
@@ -161,13 +168,99 @@ private:
     std::vector<char> mBuffer;
 };
 
+/// A `data file:` pattern `FORMAT MIN MAX STEP [SUBDIM]` expanded, its FORMAT holding exactly
+/// one `%d` (with flags and width, as `%03d`) and `%%` otherwise. @throw InputError.
+std::vector<std::string> expandPattern(const std::string& path, const std::string& format, long lo, long hi, long step)
+{
+    int conversions = 0;
+    for (std::size_t i = 0; i < format.size(); ++i) {
+        if (format[i] != '%') continue;
+        if (i + 1 < format.size() && format[i + 1] == '%') { ++i; continue; }
+        std::size_t j = i + 1;
+        while (j < format.size() && std::isdigit(static_cast<unsigned char>(format[j]))) ++j;
+        if (j >= format.size() || format[j] != 'd' || ++conversions > 1) conversions = 2;
+        i = j;
+    }
+    constexpr long kInt = std::numeric_limits<int>::max();
+    const auto small = [](long v) { return -kInt <= v && v <= kInt; };
+    const bool inRange = small(lo) && small(hi) && small(step) && step != 0;
+    const long count = inRange ? (hi - lo) / step + 1 : -1;
+    if (conversions != 1 || count < 1 || count > 1000000) {
+        throw InputError("'" + path + "': the data file pattern '" + format + " " + std::to_string(lo) + " "
+            + std::to_string(hi) + " " + std::to_string(step) + "' must hold one %d (e.g. slice%03d.raw) and "
+            "name 1 to 1000000 files");
+    }
+    std::vector<std::string> names;
+    for (long k = 0, v = lo; k < count; ++k, v += step) {
+        char name[4096];
+        if (std::snprintf(name, sizeof(name), format.c_str(), int(v)) >= int(sizeof(name)))
+            throw InputError("'" + path + "': a data file name is longer than 4095 bytes");
+        names.emplace_back(name);
+    }
+    return names;
+}
+
 } // namespace
+
+std::vector<std::string> nrrdDataFiles(const std::string& path)
+{
+    // The header as teem reads it (formatNRRD.c): lines up to the first empty one (attached) or
+    // the end of the file (detached); `data file:` (or `datafile:`) names one file, a pattern,
+    // or LIST followed by one name per line to the header's end. Names are relative to the
+    // header's folder unless absolute.
+    constexpr std::size_t kMaxHeader = 16u << 20;
+    std::ifstream in(path, std::ios::binary);
+    std::vector<std::string> lines;
+    std::size_t bytes = 0;
+    for (std::string line; std::getline(in, line);) {
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) break;
+        if ((bytes += line.size() + 1) > kMaxHeader)
+            throw InputError("'" + path + "' has a NRRD header longer than 16 MiB");
+        lines.push_back(std::move(line));
+    }
+    const fs::path folder = fs::path(path).parent_path();
+    auto resolve = [&](const std::string& name) {
+        return fs::path(name).is_absolute() || folder.empty() ? name : (folder / name).string();
+    };
+    std::vector<std::string> files;
+    for (std::size_t i = 1; i < lines.size(); ++i) {
+        const std::string& line = lines[i];
+        std::string value;
+        for (const char* key : {"data file: ", "datafile: "})
+            if (line.rfind(key, 0) == 0) value = line.substr(std::strlen(key));
+        if (value.empty()) continue;
+        files.clear(); // teem keeps the last field given
+        std::istringstream words(value);
+        std::string first;
+        words >> first;
+        if (first == "LIST") {
+            for (std::size_t j = i + 1; j < lines.size(); ++j) files.push_back(resolve(lines[j]));
+            break;
+        }
+        long lo = 0, hi = 0, step = 0;
+        if (words >> lo >> hi >> step) {
+            for (const std::string& name : expandPattern(path, first, lo, hi, step)) files.push_back(resolve(name));
+        } else {
+            files.push_back(resolve(value));
+        }
+    }
+    return files;
+}
 
 LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
     const std::string& path = request.input;
     fileSize(path);
     rejectRawFlags(request, "NRRD", false);
+    // teem opens the data files itself and would wait forever on a FIFO: regular files only.
+    for (const std::string& file : nrrdDataFiles(path)) {
+        std::error_code ec;
+        if (!fs::is_regular_file(file, ec)) {
+            throw InputError("'" + path + "' names the data file '" + file + "', which is "
+                + (fs::exists(file, ec) ? "not a regular file" : "missing"));
+        }
+    }
     // The header first: refuse what isouq cannot mesh before teem allocates the data.
     std::unique_ptr<Nrrd, NrrdNuke> nrrd(nrrdNew());
     std::unique_ptr<NrrdIoState, IoStateNix> io(nrrdIoStateNew());
@@ -217,6 +310,11 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
             io->byteSkip);
         return loadScan(source, request, name, affine, geometry, what, interrupter);
     }
+    // teem allocates the whole volume before it decodes: refuse what cannot fit first.
+    const std::uint64_t whole = std::uint64_t(n.axis[0].size) * n.axis[1].size * n.axis[2].size * sampleBytes(*type);
+    memory_internal::checkFits(whole, "'" + path + "' (" + std::to_string(n.axis[0].size) + "x"
+        + std::to_string(n.axis[1].size) + "x" + std::to_string(n.axis[2].size) + " " + toString(*type) + ", " + encoding
+        + " data decoded whole)");
     nrrd.reset(nrrdNew());
     if (nrrdLoad(nrrd.get(), path.c_str(), nullptr))
         throw InputError("cannot read the data of '" + path + "': " + teemError());

@@ -4,6 +4,8 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <tbb/task_arena.h>
+
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -109,6 +111,7 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
 
     const RawSlabReader reader(path, Coord(int(d[0]), int(d[1]), int(d[2])), type.type);
     const int nz = int(d[2]);
+    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
     std::string isovalueSource = "given";
     float isovalue = request.isovalue.value_or(0.0f);
     if (!request.isovalue) {

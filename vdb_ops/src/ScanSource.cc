@@ -114,6 +114,12 @@ LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const s
         throw InputError("'" + request.input + "' has an unusable " + geometry + " (index-to-world rows " + text
             + "): it must be finite and invertible");
     }
+    const Coord& d = source.dims;
+    if (d.x() < 2 || d.y() < 2 || d.z() < 2) {
+        throw InputError("'" + request.input + "': " + std::to_string(d.x()) + "x" + std::to_string(d.y()) + "x"
+            + std::to_string(d.z()) + " has no cell (a cell needs 2 samples along each axis): nothing to mesh");
+    }
+    checkLayersFit(source, request.input);
     std::string isovalueSource = "given";
     float isovalue = request.isovalue.value_or(0.0f);
     if (!request.isovalue) {

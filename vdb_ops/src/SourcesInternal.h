@@ -51,6 +51,17 @@ struct Range {
 /// Bin of @a v in Otsu's 256-bin histogram over [lo, hi].
 int histogramBin(double v, double lo, double hi);
 
+/// The data files a NRRD header names (`data file:`, patterns, LIST), relative names resolved
+/// against the header's folder; none for attached data. @throw InputError on a bad pattern.
+std::vector<std::string> nrrdDataFiles(const std::string& path);
+
+/// Refuses @a source (INPUT @a input) before it is read when the memory its layers take while
+/// streaming (Otsu, the sparsifier, the source's buffer) exceeds what is available (Memory.h):
+/// a small header or compressed file can describe huge slices. @throw InputError.
+void checkLayersFit(const SliceSource& source, const std::string& input);
+/// The same for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw).
+void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input);
+
 /// Otsu's threshold of a dense source (two streaming passes: range, then histogram).
 double otsuOfSource(SliceSource& source);
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).

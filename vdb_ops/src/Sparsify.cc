@@ -6,6 +6,8 @@
 #include "isouq/GridMetadata.h"
 #include "isouq/Progress.h"
 
+#include "Memory.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -439,6 +441,41 @@ struct LayerInserter {
         }
     }
 };
+
+
+namespace {
+
+/// Bytes one LayerSparsifier holds for slices of @a dims with samples of @a bytes: its ring of
+/// two layers, the column min/max of three parts (and two more for floating point), the column
+/// sums; per column of blocks a leaf pointer, a tile value and three summaries.
+std::uint64_t sparsifierBytes(const Coord& dims, std::uint64_t bytes)
+{
+    const std::uint64_t slice = std::uint64_t(dims.x()) * std::uint64_t(dims.y());
+    const std::uint64_t columns = std::uint64_t((dims.x() + kBlock - 1) / kBlock) * ((dims.y() + kBlock - 1) / kBlock);
+    return slice * ((2 * kBlock + 8) * bytes + 8) + columns * (12 + 3 * (9 * bytes + 8));
+}
+
+void checkLayerBytes(const Coord& dims, std::uint64_t bytes, const std::string& input)
+{
+    memory_internal::checkFits(bytes, "'" + input + "' (" + std::to_string(dims.x()) + "x" + std::to_string(dims.y())
+        + "x" + std::to_string(dims.z()) + ", read in layers of " + std::to_string(kBlock) + " slices)");
+}
+
+} // namespace
+
+void checkLayersFit(const SliceSource& source, const std::string& input)
+{
+    // One float sparsifier, and the source's own buffer of up to kBlock slices of 8-byte samples.
+    const std::uint64_t slice = std::uint64_t(source.dims.x()) * std::uint64_t(source.dims.y());
+    checkLayerBytes(source.dims, sparsifierBytes(source.dims, 4) + slice * kBlock * 8, input);
+}
+
+void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input)
+{
+    // Integers are held as stored, floating point as float (Samples<W>).
+    const std::uint64_t bytes = std::min<std::uint64_t>(sampleBytes(reader.type()), 4);
+    checkLayerBytes(reader.dims(), std::uint64_t(std::max(workers, 1)) * sparsifierBytes(reader.dims(), bytes), input);
+}
 
 /// Streams @a source in layers of 8 z-slices with a kHalo halo (a rolling window of at most
 /// 14 slices) and builds a tree whose leaves are the kept blocks (see KeepBlocks).

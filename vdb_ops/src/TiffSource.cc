@@ -6,6 +6,8 @@
 // (1/XResolution, 1/YResolution, `spacing=`), else 1.
 #include "SourcesInternal.h"
 
+#include "Memory.h"
+
 #include <tiffio.h>
 
 #include <algorithm>
@@ -120,8 +122,13 @@ public:
                 else if (!(p == mPage)) mismatch(z, p);
                 ++z;
             } while (TIFFReadDirectory(mStack.get()));
-            // The chain of pages ends at a damaged or missing directory: not a shorter stack.
+            // The chain of pages ends at a damaged, missing or looping directory (libtiff stops
+            // at a loop without an error): not a shorter stack.
             if (!tLastTiffError.empty()) fail(z);
+            if (!TIFFLastDirectory(mStack.get())) {
+                throw InputError("cannot read " + where(z) + ": the directory of page " + std::to_string(z - 1)
+                    + " points to one that cannot be read or was read before");
+            }
             dims = Coord(int(mPage.width), int(mPage.height), z);
         } else {
             for (std::size_t z = 0; z < mFiles.size(); ++z) {
@@ -175,6 +182,8 @@ private:
             TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tw);
             TIFFGetField(tif, TIFFTAG_TILELENGTH, &th);
             if (tw == 0 || th == 0) fail(z);
+            memory_internal::checkFits(std::uint64_t(TIFFTileSize64(tif)), where(z) + " (tiles of " + std::to_string(tw)
+                + "x" + std::to_string(th) + " pixels)");
             std::vector<char> tile(TIFFTileSize(tif));
             if (tile.size() < std::size_t(tw) * th * bytes) fail(z);
             for (std::uint32_t y0 = 0; y0 < mPage.height; y0 += th) {

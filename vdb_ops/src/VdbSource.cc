@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <set>
 
 namespace isouq {
 namespace sources_internal {
@@ -40,6 +41,7 @@ public:
     }
     void skip(std::uint64_t n) { need(n); seek(mPos + n); }
     std::uint64_t position() const { return mPos; }
+    std::uint64_t size() const { return mSize; }
     void seek(std::uint64_t pos)
     {
         mPos = pos;
@@ -64,6 +66,59 @@ private:
     const std::string& mPath;
 };
 
+/// The metadata types OpenVDB reads as sizeof(T) bytes whatever the file says (TypedMetadata of
+/// a number, vector or matrix). Strings and the others (__delayedload, ...) read what they announce.
+bool fixedSizeMetadata(const std::string& type)
+{
+    using namespace openvdb;
+    static const std::set<std::string> sFixed = {BoolMetadata::staticTypeName(),
+        Int32Metadata::staticTypeName(), Int64Metadata::staticTypeName(), FloatMetadata::staticTypeName(),
+        DoubleMetadata::staticTypeName(), Vec2IMetadata::staticTypeName(), Vec2SMetadata::staticTypeName(),
+        Vec2DMetadata::staticTypeName(), Vec3IMetadata::staticTypeName(), Vec3SMetadata::staticTypeName(),
+        Vec3DMetadata::staticTypeName(), Vec4IMetadata::staticTypeName(), Vec4SMetadata::staticTypeName(),
+        Vec4DMetadata::staticTypeName(), Mat4SMetadata::staticTypeName(), Mat4DMetadata::staticTypeName()};
+    return sFixed.count(type) != 0;
+}
+
+/// OpenVDB's delayed-load table (DelayedLoadMetadata::readValue, written into every grid by
+/// OpenVDB 10): a leaf count; the per-leaf masks as a byte count and that many blosc bytes, or 0
+/// and one raw byte per leaf; the per-leaf compressed sizes the same way (8 raw bytes per leaf),
+/// or 0xffffffff for none; bytes after these are skipped. OpenVDB allocates the arrays, the
+/// buffers and the blosc header's uncompressed size unchecked, and blosc reads as many bytes as
+/// its header says (a 12 KB file asked for 4 GiB, found by fuzz_vdb). So: the parts fit the
+/// announced size, each blosc part holds its 16-byte header, which says the part's own sizes
+/// (or OpenVDB's padding), and the leaves fit the file (each stores at least its 64-byte value mask).
+void walkDelayedLoad(BoundedReader& r, std::uint32_t bytes)
+{
+    const std::uint64_t end = r.position() + bytes;
+    const auto fail = [&](const std::string& what) {
+        r.fail("the delayed-load table (" + std::to_string(bytes) + " bytes) " + what);
+    };
+    const std::uint32_t leaves = r.pod<std::uint32_t>();
+    if (std::uint64_t(leaves) * 64 > r.size()) fail("has " + std::to_string(leaves) + " leaves");
+    for (const std::uint64_t elementBytes : {1u, 8u}) {
+        const std::uint32_t n = r.pod<std::uint32_t>();
+        if (elementBytes == 8 && n == 0xffffffffu) break; // no compressed sizes
+        const std::uint64_t raw = leaves * elementBytes, stored = n ? n : raw;
+        if (r.position() + stored > end) fail("runs past its end");
+        if (n) {
+            if (n < 16) fail("holds a blosc part without its header");
+            r.pod<std::uint32_t>(); // versions, flags, type size
+            const std::uint32_t uncompressed = r.pod<std::uint32_t>();
+            r.pod<std::uint32_t>(); // block size
+            const std::uint32_t compressed = r.pod<std::uint32_t>();
+            // OpenVDB pads a part shorter than 128 bytes to 128 before blosc (StreamCompression.cc).
+            const bool padded = raw < 128 && uncompressed == 128;
+            if ((uncompressed != raw && !padded) || compressed > n) fail("holds a blosc part of other sizes than its own");
+            r.skip(n - 16);
+        } else {
+            r.skip(raw);
+        }
+    }
+    if (r.position() > end) fail("runs past its end");
+    r.seek(end);
+}
+
 /// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
 /// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
 /// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
@@ -73,11 +128,12 @@ void walkMetadata(BoundedReader& r)
         r.string();
         const std::string type = r.string();
         const std::uint32_t bytes = r.pod<std::uint32_t>();
-        // Strings and delayed-load tables (OpenVDB's own, written with every file) vary in size.
-        if (type != openvdb::StringMetadata::staticTypeName() &&
-            type != openvdb::io::DelayedLoadMetadata::staticTypeName() && openvdb::Metadata::isRegisteredType(type)
-            && openvdb::Metadata::createMetadata(type)->size() != bytes) {
+        if (fixedSizeMetadata(type) && openvdb::Metadata::createMetadata(type)->size() != bytes) {
             r.fail("metadata of type " + type + " holds " + std::to_string(bytes) + " bytes");
+        }
+        if (type == openvdb::io::DelayedLoadMetadata::staticTypeName() && bytes > 0) {
+            walkDelayedLoad(r, bytes);
+            continue;
         }
         r.skip(bytes);
     }
@@ -92,8 +148,12 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
         throw InputError("'" + path + "' is not a VDB file (bad magic number)");
     }
     const std::uint32_t version = r.pod<std::uint32_t>();
+    // OpenVDB only warns about a version it does not know and reads on unchecked, so the
+    // versions this walk knows are the ones read (218, from 2013, up to the library's own).
     if (version < openvdb::OPENVDB_FILE_VERSION_BOOST_UUID || version > openvdb::OPENVDB_FILE_VERSION) {
-        return; // outside what the walk below knows; OpenVDB decides
+        throw InputError("'" + path + "' has VDB file format version " + std::to_string(version)
+            + "; this build reads versions " + std::to_string(openvdb::OPENVDB_FILE_VERSION_BOOST_UUID)
+            + " to " + std::to_string(openvdb::OPENVDB_FILE_VERSION));
     }
     r.skip(8);                                  // library major, minor
     const bool hasOffsets = r.pod<char>() != 0;
@@ -109,7 +169,12 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
         if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) r.fail("bad UUID");
     }
     walkMetadata(r); // file metadata
-    if (!hasOffsets) return;
+    // Without grid offsets (io::Stream output) OpenVDB reads every grid in one pass, each
+    // length unchecked, and this walk cannot find where one grid ends without reading it.
+    if (!hasOffsets) {
+        throw InputError("'" + path + "' was written as a VDB stream (no grid offsets), which isouq"
+            " does not read; save it with openvdb::io::File (any VDB tool's file output)");
+    }
     const std::int32_t grids = r.pod<std::int32_t>();
     if (grids < 0) r.fail("negative grid count");
     for (std::int32_t i = 0; i < grids; ++i) {

@@ -70,6 +70,21 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
 
 } // namespace
 
+std::vector<std::string> volumeInputFiles(const std::string& input)
+{
+    namespace si = sources_internal;
+    std::vector<std::string> files;
+    std::error_code ec;
+    try {
+        if (si::endsWith(input, ".nrrd") || si::endsWith(input, ".nhdr")) files = si::nrrdDataFiles(input);
+    } catch (const InputError&) {
+    }
+    if (std::filesystem::is_directory(input, ec))
+        for (const auto& entry : std::filesystem::directory_iterator(input, ec))
+            if (entry.is_regular_file(ec)) files.push_back(entry.path().string());
+    return files;
+}
+
 LoadedVolume loadVolume(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
     openvdb::initialize();

@@ -25,6 +25,7 @@
 #include <stdexcept>
 #include <string>
 #include <utility>
+#include <vector>
 
 namespace isouq {
 
@@ -118,6 +119,12 @@ LoadedVolume loadVolume(const VolumeRequest& request,
 /// thread). @throw InputError naming the position of a parse error.
 std::shared_ptr<const AnalyticField> makeFormulaField(const std::string& expression,
     double lo, double hi);
+
+/// The files that loadVolume(@a input) reads besides @a input itself, so that no output may
+/// replace one (SPEC §10 "Errors"): a NRRD header's data files (`data file:`, its patterns and
+/// LIST), every regular file of a folder input (TIFF slices, a DICOM series). Best effort: an
+/// unreadable input gives what could be found, never an error.
+std::vector<std::string> volumeInputFiles(const std::string& input);
 
 /// Otsu's threshold of a 256-bin histogram over [lo, hi] (bin b covers
 /// [lo + b w, lo + (b+1) w), w = (hi - lo) / 256): the centre of the last bin of the lower
