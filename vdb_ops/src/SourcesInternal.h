@@ -59,8 +59,6 @@ std::vector<std::string> nrrdDataFiles(const std::string& path);
 /// streaming (Otsu, the sparsifier, the source's buffer) exceeds what is available (Memory.h):
 /// a small header or compressed file can describe huge slices. @throw InputError.
 void checkLayersFit(const SliceSource& source, const std::string& input);
-/// The same for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw).
-void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input);
 
 /// Otsu's threshold of a dense source (two streaming passes: range, then histogram).
 double otsuOfSource(SliceSource& source);
@@ -117,6 +115,9 @@ private:
     SampleType mType;
     int mFd = -1;
 };
+
+/// checkLayersFit for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw).
+void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input);
 
 /// What Otsu's threshold needs from the slices [z0, z1) of a raw scan; parts of a volume add up
 /// (add()), so MPI ranks can reduce theirs. 8- and 16-bit samples: one pass counting each value
