@@ -208,7 +208,7 @@ def test_other_thread_runs_during_a_long_call(isouq):
     t.start()
     try:
         start = time.perf_counter()
-        m = isouq.mesh("field:tangle", resolution=160)
+        m = isouq.mesh("field:tangle", resolution=256)  # long enough (> 0.3 s) on a quiet machine
         elapsed = time.perf_counter() - start
     finally:
         stop.set()

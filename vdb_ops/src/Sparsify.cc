@@ -639,6 +639,7 @@ RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* hist
 double otsuOfRawStats(const RawStats& stats, SampleType type)
 {
     const Range& range = stats.range;
+    if (!(range.min <= range.max)) throw InputError("the data has no finite value; nothing to mesh");
     if (!(range.min < range.max))
         throw InputError("constant data (every value is " + fmt(range.min) + "): no surface and no default "
                          "isovalue; nothing to mesh");
