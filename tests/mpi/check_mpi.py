@@ -117,10 +117,11 @@ def bad_input(args):
 
 
 def big_sphere(work):
-    path = os.path.join(work, "big_sphere.vdb")
+    # Big enough that a run on a quiet machine is still meshing when the signal comes.
+    path = os.path.join(work, "big_sphere_r400.vdb")
     if not os.path.exists(path):
         import pyopenvdb as vdb
-        g = vdb.createLevelSetSphere(radius=260.0, center=(0, 0, 0), voxelSize=1.0, halfWidth=3.0)
+        g = vdb.createLevelSetSphere(radius=400.0, center=(0, 0, 0), voxelSize=1.0, halfWidth=3.0)
         g.name = "ls"
         vdb.write(path, grids=[g])
     return path
@@ -141,6 +142,8 @@ def interrupt(args):
     out = os.path.join(work, "out.ply")
     # SIGINT to every rank, as srun forwards Ctrl-C (mpirun itself turns it into SIGTERM).
     for target in ("ranks", "mpirun"):
+        for stale in glob.glob(out) + glob.glob(os.path.join(work, ".isouq-*")):
+            os.remove(stale)  # an earlier run's
         p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", src, "-o", out, "-j", "1"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ranks = []
@@ -148,7 +151,7 @@ def interrupt(args):
         while len(ranks) < args.np and time.time() < deadline:
             ranks = children(p.pid)
             time.sleep(0.05)
-        time.sleep(1.0)
+        time.sleep(0.3)
         if target == "ranks":
             for pid in ranks:
                 os.kill(pid, signal.SIGINT)
@@ -159,7 +162,7 @@ def interrupt(args):
         if expect is not None and p.returncode != expect:
             sys.exit(f"SIGINT to the {target}: exit {p.returncode}, expected {expect}\n{err}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
-            sys.exit(f"SIGINT to the {target}: an output was left behind")
+            sys.exit(f"SIGINT to the {target}: an output was left behind (exit {p.returncode})")
         print(f"np {args.np}: SIGINT to the {target}: exit {p.returncode}, no output")
 
 
