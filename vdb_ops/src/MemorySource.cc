@@ -70,14 +70,7 @@ LoadedVolume loadMemory(const VolumeRequest& request, openvdb::util::NullInterru
     }
     // As loadRaw: Otsu's starting value unless given, then the same slabs and KeepBlocks.
     MemorySlices source(*memory);
-    std::string isovalueSource = "given";
-    float isovalue = request.isovalue.value_or(0.0f);
-    if (!request.isovalue) {
-        isovalue = float(otsuOfSource(source));
-        isovalueSource = "Otsu (starting value)";
-    }
-    LoadedVolume volume = buildDense(source, request, isovalue, interrupter);
-    volume.isovalueSource = isovalueSource;
+    LoadedVolume volume = loadDense(source, request, interrupter);
     volume.grid->setName(memory->name);
     auto transform = openvdb::math::Transform::createLinearTransform(1.0);
     transform->preScale(memory->spacing);

@@ -119,15 +119,7 @@ LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const s
         throw InputError("'" + request.input + "': " + std::to_string(d.x()) + "x" + std::to_string(d.y()) + "x"
             + std::to_string(d.z()) + " has no cell (a cell needs 2 samples along each axis): nothing to mesh");
     }
-    checkLayersFit(source, request.input);
-    std::string isovalueSource = "given";
-    float isovalue = request.isovalue.value_or(0.0f);
-    if (!request.isovalue) {
-        isovalue = float(otsuOfSource(source));
-        isovalueSource = "Otsu (starting value)";
-    }
-    LoadedVolume volume = buildDense(source, request, isovalue, interrupter);
-    volume.isovalueSource = isovalueSource;
+    LoadedVolume volume = loadDense(source, request, interrupter);
     volume.grid->setName(name);
     volume.grid->setTransform(openvdb::math::Transform::createLinearTransform(m));
     volume.geometry = geometry;

@@ -71,6 +71,10 @@ double otsuOfGrid(const openvdb::FloatGrid& grid);
 LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
     openvdb::util::NullInterrupter* interrupter);
 
+/// A dense source as every slice reader loads it: checkLayersFit, the given isovalue or Otsu's
+/// starting value (isovalueSource says which), then buildDense.
+LoadedVolume loadDense(SliceSource& source, const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter);
+
 /// A dense volume made sparse (docs/inputs.md "Sparse conversion"): kept blocks are active
 /// leaves, the others inactive tiles; @a range spans the finite values of the blocks' own voxels.
 struct SparseResult {

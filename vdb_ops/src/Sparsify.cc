@@ -519,6 +519,15 @@ LoadedVolume denseVolume(SparseResult&& sparse, const Coord& dims, float isovalu
 }
 
 /// Isovalue, sparse tree, transform and data-box metadata for a dense source.
+LoadedVolume loadDense(SliceSource& source, const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+{
+    checkLayersFit(source, request.input);
+    const float isovalue = request.isovalue ? *request.isovalue : float(otsuOfSource(source));
+    LoadedVolume volume = buildDense(source, request, isovalue, interrupter);
+    volume.isovalueSource = request.isovalue ? "given" : "Otsu (starting value)";
+    return volume;
+}
+
 LoadedVolume buildDense(SliceSource& source, const VolumeRequest& request, float isovalue,
     openvdb::util::NullInterrupter* interrupter)
 {
