@@ -224,9 +224,7 @@ void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
     const float isovalue = settings.isovalue;
     const std::optional<CoordBBox> bounds = dataBoundsOf(grid, settings);
     const std::optional<CoordBBox> cellBox = meshedCellBox(bounds, settings.brick);
-    const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
-    const bool flip = settings.orientation == Orientation::TowardsHigher ||
-                      (settings.orientation == Orientation::Auto && levelSet);
+    const bool flip = flipsTriangles(grid, settings);
     const bool provenance = settings.provenance || settings.uncertainty;
     const std::size_t n = d.end - d.begin;
     const std::uint64_t vertices = vertexCount(), triangles = triangleCount();

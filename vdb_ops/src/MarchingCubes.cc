@@ -72,9 +72,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     const float isovalue = settings.isovalue;
     const std::optional<CoordBBox> bounds = dataBoundsOf(grid, settings);
     const std::optional<CoordBBox> cellBox = meshedCellBox(bounds, settings.brick);
-    const bool levelSet = grid.getGridClass() == openvdb::GRID_LEVEL_SET;
-    const bool flip = settings.orientation == Orientation::TowardsHigher ||
-                      (settings.orientation == Orientation::Auto && levelSet);
+    const bool flip = flipsTriangles(grid, settings);
     const bool provenance = settings.provenance || settings.uncertainty;
 
     if (interrupter) interrupter->start("Meshing");

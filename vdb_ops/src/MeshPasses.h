@@ -153,6 +153,14 @@ void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours
     });
 }
 
+/// Whether triangles are wound the other way (Orientation; level sets face outward by default).
+template <typename GridT>
+bool flipsTriangles(const GridT& grid, const MeshSettings& settings)
+{
+    return settings.orientation == Orientation::TowardsHigher ||
+           (settings.orientation == Orientation::Auto && grid.getGridClass() == openvdb::GRID_LEVEL_SET);
+}
+
 template <typename GridT>
 std::optional<CoordBBox> dataBoundsOf(const GridT& grid, const MeshSettings& settings)
 {
