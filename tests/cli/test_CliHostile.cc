@@ -579,6 +579,34 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
             writeFile(dir / "series" / ("s" + std::to_string(k)), dicomSlice("1.2.3.9", k, 65535, 65535, std::string(40, '\1')));
         requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "series", {out});
     }
+    SECTION("an element announcing 4 GB in a slice of 1 KB: refused before GDCM allocates it")
+    {
+        // fuzz_dicom's finding (fuzz/regressions/fuzz_dicom/gdcm_element_length_oom-*), rebuilt.
+        std::string huge = element(0x7fe1, 0x0010, "OB", "");
+        put<std::uint32_t>(huge, 8, 0xf1f2f3f4u);
+        writeFile(dir / "series" / "s1", dicomSlice("1.2.3.9", 2.0) + huge + std::string(64, '\7'));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "announces 4059231220 bytes", {out});
+    }
+    SECTION("sequences nested 100 deep")
+    {
+        std::string nested;
+        for (int k = 0; k < 100; ++k) {
+            std::string sq = element(0x0008, 0x1115, "SQ", ""), item;
+            put<std::uint32_t>(sq, 8, 0xffffffffu);
+            put<std::uint16_t>(item, 0, 0xfffe);
+            put<std::uint16_t>(item, 2, 0xe000);
+            put<std::uint32_t>(item, 4, 0xffffffffu);
+            nested += sq + item;
+        }
+        writeFile(dir / "series" / "s1", dicomSlice("1.2.3.9", 2.0) + nested);
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "nest deeper than 64", {out});
+    }
+    SECTION("a slice cut inside its pixels")
+    {
+        const std::string slice = dicomSlice("1.2.3.9", 2.0);
+        writeFile(dir / "series" / "s1", slice.substr(0, slice.size() - 7));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "are left", {out});
+    }
     requireNoTemporaries(dir);
 }
 
