@@ -427,42 +427,39 @@ TEST_CASE("CLI hostile: detached NRRD data files", "[cli][hostile][nrrd]")
     const fs::path out = dir / "out.ply";
     fs::create_directories(dir / "scan");
     writeFile(dir / "scan" / "ramp.raw", ramp());
+    auto refused = [&](const std::string& name, const std::string& header, const std::string& expected) {
+        writeFile(dir / "scan" / (name + ".nhdr"), header);
+        requireRefused(runTimed("mesh scan/" + name + ".nhdr -k 60 -q -o out.ply", dir), expected, {out});
+    };
     SECTION("a FIFO: refused at once, not waited on")
     {
         REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
-        writeFile(dir / "scan" / "fifo.nhdr", nhdr("fifo"));
-        requireRefused(runTimed("mesh scan/fifo.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("fifo", nhdr("fifo"), "not a regular file");
     }
     SECTION("/dev/zero")
     {
-        writeFile(dir / "scan" / "zero.nhdr", nhdr("/dev/zero"));
-        requireRefused(runTimed("mesh scan/zero.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("zero", nhdr("/dev/zero"), "not a regular file");
     }
     SECTION("a folder")
     {
-        writeFile(dir / "scan" / "folder.nhdr", nhdr("."));
-        requireRefused(runTimed("mesh scan/folder.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("folder", nhdr("."), "not a regular file");
     }
     SECTION("a missing file")
     {
-        writeFile(dir / "scan" / "missing.nhdr", nhdr("nowhere.raw"));
-        requireRefused(runTimed("mesh scan/missing.nhdr -k 60 -q -o out.ply", dir), "missing", {out});
+        refused("missing", nhdr("nowhere.raw"), "missing");
     }
     SECTION("a LIST with a FIFO among the files")
     {
         REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
-        writeFile(dir / "scan" / "list.nhdr", nhdr("LIST 2") + "ramp.raw\nfifo\n");
-        requireRefused(runTimed("mesh scan/list.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("list", nhdr("LIST 2") + "ramp.raw\nfifo\n", "not a regular file");
     }
     SECTION("a pattern with %s and %n (teem would hand it to sprintf)")
     {
-        writeFile(dir / "scan" / "format.nhdr", nhdr("%s%n%d 1 4 1 2"));
-        requireRefused(runTimed("mesh scan/format.nhdr -k 60 -q -o out.ply", dir), "must hold one %d", {out});
+        refused("format", nhdr("%s%n%d 1 4 1 2"), "must hold one %d");
     }
     SECTION("a pattern naming two billion files")
     {
-        writeFile(dir / "scan" / "many.nhdr", nhdr("s%03d.raw -2000000000 2000000000 1 2"));
-        requireRefused(runTimed("mesh scan/many.nhdr -k 60 -q -o out.ply", dir), "name 1 to 1000000 files", {out});
+        refused("many", nhdr("s%03d.raw -2000000000 2000000000 1 2"), "name 1 to 1000000 files");
     }
     SECTION("a data file outside the header's folder is read (the NRRD format allows any path)")
     {
