@@ -5,7 +5,8 @@
 #                                  find_package consumer, Blender add-on: they run the
 #                                  sanitized CLI; Blender itself is not sanitized).
 #   scripts/sanitize.sh thread     ThreadSanitizer in build-tsan/: the threaded mesher, hidden
-#                                  features and the CLI contract (ctest -R).
+#                                  features, the CLI contract and, with MPI, isouq under mpirun
+#                                  (ctest -R).
 # Any sanitizer report fails the test that caused it (halt_on_error, exitcode). Prints ctest's
 # summary; the exit status is ctest's.
 set -euo pipefail
@@ -38,7 +39,7 @@ thread)
   cmake --build "$build" -j"$jobs" --target isouq test_MarchingCubes test_HiddenFeatures test_CliContract
   export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$root/scripts/sanitizers/tsan.supp"
   cd "$build"
-  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|HiddenFeatures|CliContract'
+  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|HiddenFeatures|CliContract|^mpi_'
   ;;
 *)
   echo "usage: scripts/sanitize.sh [address|thread]" >&2

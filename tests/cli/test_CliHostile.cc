@@ -427,42 +427,39 @@ TEST_CASE("CLI hostile: detached NRRD data files", "[cli][hostile][nrrd]")
     const fs::path out = dir / "out.ply";
     fs::create_directories(dir / "scan");
     writeFile(dir / "scan" / "ramp.raw", ramp());
+    auto refused = [&](const std::string& name, const std::string& header, const std::string& expected) {
+        writeFile(dir / "scan" / (name + ".nhdr"), header);
+        requireRefused(runTimed("mesh scan/" + name + ".nhdr -k 60 -q -o out.ply", dir), expected, {out});
+    };
     SECTION("a FIFO: refused at once, not waited on")
     {
         REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
-        writeFile(dir / "scan" / "fifo.nhdr", nhdr("fifo"));
-        requireRefused(runTimed("mesh scan/fifo.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("fifo", nhdr("fifo"), "not a regular file");
     }
     SECTION("/dev/zero")
     {
-        writeFile(dir / "scan" / "zero.nhdr", nhdr("/dev/zero"));
-        requireRefused(runTimed("mesh scan/zero.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("zero", nhdr("/dev/zero"), "not a regular file");
     }
     SECTION("a folder")
     {
-        writeFile(dir / "scan" / "folder.nhdr", nhdr("."));
-        requireRefused(runTimed("mesh scan/folder.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("folder", nhdr("."), "not a regular file");
     }
     SECTION("a missing file")
     {
-        writeFile(dir / "scan" / "missing.nhdr", nhdr("nowhere.raw"));
-        requireRefused(runTimed("mesh scan/missing.nhdr -k 60 -q -o out.ply", dir), "missing", {out});
+        refused("missing", nhdr("nowhere.raw"), "missing");
     }
     SECTION("a LIST with a FIFO among the files")
     {
         REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
-        writeFile(dir / "scan" / "list.nhdr", nhdr("LIST 2") + "ramp.raw\nfifo\n");
-        requireRefused(runTimed("mesh scan/list.nhdr -k 60 -q -o out.ply", dir), "not a regular file", {out});
+        refused("list", nhdr("LIST 2") + "ramp.raw\nfifo\n", "not a regular file");
     }
     SECTION("a pattern with %s and %n (teem would hand it to sprintf)")
     {
-        writeFile(dir / "scan" / "format.nhdr", nhdr("%s%n%d 1 4 1 2"));
-        requireRefused(runTimed("mesh scan/format.nhdr -k 60 -q -o out.ply", dir), "must hold one %d", {out});
+        refused("format", nhdr("%s%n%d 1 4 1 2"), "must hold one %d");
     }
     SECTION("a pattern naming two billion files")
     {
-        writeFile(dir / "scan" / "many.nhdr", nhdr("s%03d.raw -2000000000 2000000000 1 2"));
-        requireRefused(runTimed("mesh scan/many.nhdr -k 60 -q -o out.ply", dir), "name 1 to 1000000 files", {out});
+        refused("many", nhdr("s%03d.raw -2000000000 2000000000 1 2"), "name 1 to 1000000 files");
     }
     SECTION("a data file outside the header's folder is read (the NRRD format allows any path)")
     {
@@ -578,6 +575,34 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
         for (int k = 0; k < 2; ++k)
             writeFile(dir / "series" / ("s" + std::to_string(k)), dicomSlice("1.2.3.9", k, 65535, 65535, std::string(40, '\1')));
         requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "series", {out});
+    }
+    SECTION("an element announcing 4 GB in a slice of 1 KB: refused before GDCM allocates it")
+    {
+        // fuzz_dicom's finding (fuzz/regressions/fuzz_dicom/gdcm_element_length_oom-*), rebuilt.
+        std::string huge = element(0x7fe1, 0x0010, "OB", "");
+        put<std::uint32_t>(huge, 8, 0xf1f2f3f4u);
+        writeFile(dir / "series" / "s1", dicomSlice("1.2.3.9", 2.0) + huge + std::string(64, '\7'));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "announces 4059231220 bytes", {out});
+    }
+    SECTION("sequences nested 100 deep")
+    {
+        std::string nested;
+        for (int k = 0; k < 100; ++k) {
+            std::string sq = element(0x0008, 0x1115, "SQ", ""), item;
+            put<std::uint32_t>(sq, 8, 0xffffffffu);
+            put<std::uint16_t>(item, 0, 0xfffe);
+            put<std::uint16_t>(item, 2, 0xe000);
+            put<std::uint32_t>(item, 4, 0xffffffffu);
+            nested += sq + item;
+        }
+        writeFile(dir / "series" / "s1", dicomSlice("1.2.3.9", 2.0) + nested);
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "nest deeper than 64", {out});
+    }
+    SECTION("a slice cut inside its pixels")
+    {
+        const std::string slice = dicomSlice("1.2.3.9", 2.0);
+        writeFile(dir / "series" / "s1", slice.substr(0, slice.size() - 7));
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "are left", {out});
     }
     requireNoTemporaries(dir);
 }

@@ -487,3 +487,29 @@ def test_dicom_series_from_pydicom_test_files(isouq_cli, tmp_path, name):
     affine[:3, 3] = np.array(first.ImagePositionPatient, float)
     assert_moved_by(ply, ref, affine, matrix_atol=1e-6)
     assert summary["description"].startswith("series: DICOM series of 4 slices")
+
+
+def test_dicom_element_walk_against_pydicom(isouq_cli, tmp_path):
+    """isouq walks each DICOM file's elements before GDCM sees it and refuses a length that
+    overruns the file (docs/hardening.md). Truth: every file of python3-pydicom's test data that
+    pydicom parses to its last element passes the walk, and the files its authors cut short
+    (named *truncated*) are refused as damaged."""
+    pydicom = pytest.importorskip("pydicom")
+    data = Path(pydicom.__file__).parent / "data" / "test_files"
+    checked = refused = 0
+    for source in sorted(data.glob("*.dcm")):
+        try:
+            list(pydicom.dcmread(source).iterall())
+        except Exception:  # pydicom cannot read it either: no truth here
+            continue
+        folder = tmp_path / source.stem
+        folder.mkdir()
+        (folder / "s0").write_bytes(source.read_bytes())  # the walk comes before the count of slices
+        r = subprocess.run([isouq_cli, "mesh", str(folder), "-q", "-o", str(tmp_path / "o.ply")],
+                           capture_output=True, text=True, timeout=120)
+        damaged = "damaged DICOM file: at byte" in r.stderr  # the walk's refusal, not GDCM's
+        assert damaged == ("truncated" in source.name), (source.name, r.stderr)
+        assert r.returncode in (0, 2) and len(r.stderr.strip().splitlines()) <= 1, (source.name, r.stderr)
+        checked += 1
+        refused += damaged
+    assert checked >= 40 and refused >= 2, (checked, refused)

@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <optional>
@@ -53,31 +54,205 @@ struct Slice {
     double along = 0; ///< position along the slice normal
 };
 
+/// GDCM allocates each element's value at its announced length before reading it, so a 7 KB
+/// file announcing a 4 GB element costs 4 GB (a fuzzing finding, docs/hardening.md). Before GDCM
+/// sees a file, this walks its elements (PS3.5 §7: the explicit-VR file meta group, then the
+/// data set in its transfer syntax; sequences, items and encapsulated fragments as in §7.5 and
+/// A.4) and refuses any element, item or fragment longer than the bytes left in its file or
+/// its enclosing sequence or item. Deflated data sets (A.5) are left to GDCM after the meta group.
+class ElementWalk {
+public:
+    explicit ElementWalk(const std::string& file) : mFile(file), mIn(file, std::ios::binary)
+    {
+        std::error_code ec;
+        mSize = fs::file_size(file, ec);
+        if (ec || !mIn) throw InputError("cannot read '" + file + "'");
+    }
+
+    /// @return false when the file is no DICOM file at all (no preamble, no group 0002 or 0008
+    ///         at its start); @throw InputError when it is one whose lengths do not fit.
+    bool run()
+    {
+        std::uint64_t pos = 0;
+        unsigned char head[4];
+        if (mSize >= 132 && readAt(128, head, 4) && std::memcmp(head, "DICM", 4) == 0) pos = 132;
+        else if (!(mSize >= 8 && readAt(0, head, 4) && (head[0] == 2 || head[0] == 8) && head[1] == 0)) return false;
+        // The file meta group is explicit VR little endian (PS3.10 §7.1); it names the syntax.
+        Syntax syntax{true, false};
+        std::string transfer;
+        while (pos + 8 <= mSize && readAt(pos, head, 2) && head[0] == 2 && head[1] == 0)
+            pos = element(pos, mSize, syntax, 0, &transfer);
+        while (!transfer.empty() && (transfer.back() == '\0' || transfer.back() == ' ')) transfer.pop_back();
+        if (transfer == "1.2.840.10008.1.2.1.99") return true; // deflated: GDCM inflates and parses
+        if (transfer == "1.2.840.10008.1.2") syntax = {false, false};
+        else if (transfer == "1.2.840.10008.1.2.2") syntax = {true, true};
+        // No meta group, or a data set written in implicit VR under an explicit syntax's name
+        // (GDCM and pydicom read both): the first element tells.
+        if (syntax.explicitVr && pos + 8 <= mSize && !validVr(pos + 4)) syntax.explicitVr = false;
+        elements(pos, mSize, syntax, 0, false);
+        // Debian's GDCM keeps its assertions, and one aborts the process on a multi-frame
+        // image whose Frame Increment Pointer names frames it does not count (pydicom's
+        // rtdose_1frame.dcm); PS3.3 C.7.6.6 makes (0028,0008) Type 1 beside (0028,0009).
+        if (has(0x0028, 0x0009) && !has(0x0028, 0x0008))
+            throw InputError("'" + mFile + "' is a damaged DICOM file: it has a Frame Increment Pointer (0028,0009) "
+                "but no Number of Frames (0028,0008)");
+        return true;
+    }
+
+private:
+    struct Syntax {
+        bool explicitVr, bigEndian;
+    };
+    static constexpr std::uint32_t kUndefined = 0xffffffffu;
+    static constexpr int kMaxDepth = 64;
+
+    bool readAt(std::uint64_t pos, unsigned char* out, std::size_t n)
+    {
+        if (pos + n > mSize) return false;
+        mIn.clear();
+        mIn.seekg(std::streamoff(pos));
+        return bool(mIn.read(reinterpret_cast<char*>(out), std::streamsize(n)));
+    }
+    [[noreturn]] void damaged(std::uint64_t pos, const std::string& why) const
+    {
+        throw InputError("'" + mFile + "' is a damaged DICOM file: at byte " + std::to_string(pos) + ", " + why);
+    }
+    std::uint32_t number(std::uint64_t pos, int bytes, bool bigEndian)
+    {
+        unsigned char b[4];
+        if (!readAt(pos, b, std::size_t(bytes))) damaged(pos, "it ends inside an element header");
+        std::uint32_t v = 0;
+        for (int k = 0; k < bytes; ++k) v |= std::uint32_t(b[bigEndian ? bytes - 1 - k : k]) << (8 * k);
+        return v;
+    }
+    bool validVr(std::uint64_t pos)
+    {
+        static const std::set<std::string> kVrs{"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FL", "FD", "IS", "LO",
+            "LT", "OB", "OD", "OF", "OL", "OV", "OW", "PN", "SH", "SL", "SQ", "SS", "ST", "SV", "TM", "UC", "UI",
+            "UL", "UN", "UR", "US", "UT", "UV"};
+        unsigned char vr[2];
+        return readAt(pos, vr, 2) && kVrs.count(std::string(reinterpret_cast<char*>(vr), 2));
+    }
+    void fits(std::uint64_t pos, std::uint64_t length, std::uint64_t end, const char* what)
+    {
+        if (length > end - pos) {
+            damaged(pos, std::string(what) + " announces " + std::to_string(length) + " bytes where "
+                + std::to_string(end - pos) + " are left");
+        }
+    }
+
+    /// Elements from pos to end, or to the item delimiter when inItem (undefined-length item).
+    std::uint64_t elements(std::uint64_t pos, std::uint64_t end, Syntax syntax, int depth, bool inItem)
+    {
+        while (pos < end) {
+            if (inItem && number(pos, 2, syntax.bigEndian) == 0xfffe && number(pos + 2, 2, syntax.bigEndian) == 0xe00d)
+                return pos + 8;
+            if (depth == 0) mTopLevel.insert(number(pos, 2, syntax.bigEndian) << 16 | number(pos + 2, 2, syntax.bigEndian));
+            pos = element(pos, end, syntax, depth, nullptr);
+        }
+        if (inItem) damaged(pos, "an item has no delimiter");
+        return pos;
+    }
+
+    /// One element at pos; its value's end. transfer, if given, receives (0002,0010).
+    std::uint64_t element(std::uint64_t pos, std::uint64_t end, Syntax syntax, int depth, std::string* transfer)
+    {
+        if (end - pos < 8) damaged(pos, "it ends inside an element header");
+        const std::uint32_t group = number(pos, 2, syntax.bigEndian), elem = number(pos + 2, 2, syntax.bigEndian);
+        std::string vr;
+        std::uint64_t length, value;
+        if (syntax.explicitVr && group != 0xfffe) {
+            if (!validVr(pos + 4)) damaged(pos, "an element has no valid value representation");
+            unsigned char b[2];
+            readAt(pos + 4, b, 2);
+            vr.assign(reinterpret_cast<char*>(b), 2);
+            static const std::set<std::string> kLong{"OB", "OD", "OF", "OL", "OV", "OW", "SQ", "SV", "UC", "UN",
+                "UR", "UT", "UV"};
+            if (kLong.count(vr)) {
+                if (end - pos < 12) damaged(pos, "it ends inside an element header");
+                length = number(pos + 8, 4, syntax.bigEndian);
+                value = pos + 12;
+            } else {
+                length = number(pos + 6, 2, syntax.bigEndian);
+                value = pos + 8;
+            }
+        } else {
+            length = number(pos + 4, 4, syntax.bigEndian);
+            value = pos + 8;
+        }
+        if (group == 0xfffe) damaged(pos, "an item or delimiter stands outside a sequence");
+        const bool pixelData = group == 0x7fe0 && elem == 0x0010;
+        if (length == kUndefined) {
+            if (depth >= kMaxDepth) damaged(pos, "sequences nest deeper than " + std::to_string(kMaxDepth));
+            // An undefined-length UN holds an implicit VR sequence (PS3.5 §6.2.2).
+            const Syntax inner = vr == "UN" || (syntax.explicitVr && vr != "SQ" && !pixelData)
+                ? Syntax{false, syntax.bigEndian} : syntax;
+            return items(value, end, inner, depth + 1, pixelData, true);
+        }
+        fits(value, length, end, "an element");
+        if (transfer && group == 0x0002 && elem == 0x0010 && length < 256) {
+            transfer->resize(std::size_t(length));
+            readAt(value, reinterpret_cast<unsigned char*>(transfer->data()), std::size_t(length));
+        }
+        // A defined-length sequence: SQ, or in implicit VR a value that starts with an item.
+        const bool sequence = vr == "SQ"
+            || (!syntax.explicitVr && length >= 8 && number(value, 2, syntax.bigEndian) == 0xfffe
+                && number(value + 2, 2, syntax.bigEndian) == 0xe000);
+        if (sequence && length > 0) {
+            if (depth >= kMaxDepth) damaged(pos, "sequences nest deeper than " + std::to_string(kMaxDepth));
+            items(value, value + length, syntax, depth + 1, false, false);
+        }
+        return value + length;
+    }
+
+    /// The items of a sequence (or the fragments of encapsulated pixel data) from pos to end,
+    /// or to the sequence delimiter when undefined.
+    std::uint64_t items(std::uint64_t pos, std::uint64_t end, Syntax syntax, int depth, bool fragments, bool undefined)
+    {
+        while (pos < end) {
+            if (end - pos < 8) damaged(pos, "it ends inside an item header");
+            const std::uint32_t group = number(pos, 2, syntax.bigEndian), elem = number(pos + 2, 2, syntax.bigEndian);
+            const std::uint32_t length = number(pos + 4, 4, syntax.bigEndian);
+            if (group == 0xfffe && elem == 0xe0dd) {
+                if (undefined) return pos + 8;
+                damaged(pos, "a sequence delimiter ends a sequence of defined length");
+            }
+            if (group != 0xfffe || elem != 0xe000) damaged(pos, "a sequence holds something other than items");
+            pos += 8;
+            if (length == kUndefined && !fragments) {
+                pos = elements(pos, end, syntax, depth, true);
+                continue;
+            }
+            if (length == kUndefined) damaged(pos - 8, "a pixel data fragment has no length");
+            fits(pos, length, end, "an item");
+            if (!fragments) elements(pos, pos + length, syntax, depth, false);
+            pos += length;
+        }
+        if (undefined) damaged(pos, "a sequence has no delimiter");
+        return pos;
+    }
+
+    bool has(std::uint32_t group, std::uint32_t elem) const { return mTopLevel.count(group << 16 | elem) > 0; }
+
+    std::string mFile;
+    std::set<std::uint32_t> mTopLevel; ///< the data set's own tags, group << 16 | element
+    std::ifstream mIn;
+    std::uint64_t mSize = 0;
+};
+
 /// The slice's image (GDCM decodes any compressed transfer syntax it supports).
 /// @throw InputError naming the file.
 void readImage(gdcm::ImageReader& reader, const std::string& file)
 {
     reader.SetFileName(file.c_str());
-    if (!reader.Read()) throw InputError("'" + file + "' is not a readable DICOM image");
-}
-
-/// GDCM reads a file cut inside its native Pixel Data (7FE0,0010) without an error (the value
-/// keeps its declared length), so the file must hold the whole encoded data set: the file meta
-/// information with its preamble (GetFullLength), then every element of the data set.
-void checkWholeFile(const gdcm::ImageReader& reader, const std::string& file)
-{
-    const gdcm::File& f = reader.GetFile();
-    const gdcm::DataSet& ds = f.GetDataSet();
-    if (!ds.GetDataElement(gdcm::Tag(0x7fe0, 0x0010)).GetByteValue()) return; // encapsulated: decoder checks
-    const bool implicit = f.GetHeader().GetDataSetTransferSyntax().IsImplicit();
-    const std::uint64_t length = implicit ? std::uint64_t(ds.GetLength<gdcm::ImplicitDataElement>())
-                                          : std::uint64_t(ds.GetLength<gdcm::ExplicitDataElement>());
-    const std::uint64_t expected = std::uint64_t(f.GetHeader().GetFullLength()) + length;
-    std::error_code ec;
-    const std::uint64_t size = fs::file_size(file, ec);
-    if (!ec && size < expected) {
-        throw InputError("'" + file + "' is truncated: its elements need " + std::to_string(expected)
-            + " bytes, the file has " + std::to_string(size));
+    // GDCM's JPEG codecs leave libjpeg's error output on, which prints while GDCM tries its 8-,
+    // 12- and 16-bit decoders in turn (pydicom's JPEG-lossy.dcm: two lines before a good read).
+    StderrCapture capture;
+    const bool read = reader.Read();
+    const std::string printed = capture.release();
+    if (!read) {
+        throw InputError("'" + file + "' is not a readable DICOM image"
+            + (printed.empty() ? std::string() : " (GDCM says: " + printed + ")"));
     }
 }
 
@@ -85,7 +260,6 @@ Slice readSlice(const std::string& file)
 {
     gdcm::ImageReader reader;
     readImage(reader, file);
-    checkWholeFile(reader, file);
     const gdcm::Image& image = reader.GetImage();
     Slice s;
     s.file = file;
@@ -129,7 +303,12 @@ public:
             const gdcm::Image& image = reader.GetImage();
             const std::size_t bytes = slice * sampleBytes(mSlices[z].type);
             mBuffer.resize(image.GetBufferLength());
-            if (mBuffer.size() < bytes || !image.GetBuffer(mBuffer.data()))
+            bool decoded = false;
+            if (mBuffer.size() >= bytes) {
+                StderrCapture capture; // as in readImage
+                decoded = image.GetBuffer(mBuffer.data());
+            }
+            if (!decoded)
                 throw InputError("cannot read the pixels of '" + mSlices[z].file + "' (truncated or unsupported encoding)");
             // GDCM gives the pixels in host byte order; each slice has its own rescale (PS3.3 C.11.1).
             decodeSamples(mBuffer.data(), slice, mSlices[z].type, __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__,
@@ -160,6 +339,11 @@ LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrup
         if (entry.is_regular_file(ec)) listed.push_back(entry.path().string());
     if (ec) throw InputError("cannot list the folder '" + path + "': " + ec.message());
     std::sort(listed.begin(), listed.end());
+    // Files that are not DICOM at all are strangers to the series and are ignored; DICOM files
+    // whose lengths do not fit are refused before GDCM allocates for them.
+    listed.erase(std::remove_if(listed.begin(), listed.end(), [](const std::string& file) {
+        return !ElementWalk(file).run();
+    }), listed.end());
     // Group the DICOM files by Series Instance UID (0020,000E); other files are ignored.
     const gdcm::Tag seriesTag(0x0020, 0x000e);
     gdcm::Scanner scanner;

@@ -6,14 +6,10 @@
 
 #include <nifti2_io.h>
 
-#include <unistd.h>
-
-#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -95,53 +91,6 @@ private:
     double mSlope = 1.0, mInter = 0.0;
     znzFile mFile = nullptr;
     std::vector<char> mBuffer;
-};
-
-/// nifticlib prints some errors to stderr whatever its debug level ("** ERROR:
-/// nifti_convert_n1hdr2nim: bad dim[1]"), which would make a second error line (SPEC §8). Its
-/// header calls run with file descriptor 2 sent to a temporary file (one at a time: the
-/// descriptor is the process's); release() gives back stderr and what was printed.
-class StderrCapture {
-public:
-    StderrCapture() : mLock(sMutex)
-    {
-        std::fflush(stderr);
-        mFile = std::tmpfile();
-        mSaved = mFile ? ::dup(2) : -1;
-        if (mSaved < 0 || ::dup2(::fileno(mFile), 2) < 0) restore();
-    }
-    ~StderrCapture() { release(); }
-    StderrCapture(const StderrCapture&) = delete;
-    StderrCapture& operator=(const StderrCapture&) = delete;
-
-    /// Stderr back; what was printed meanwhile, control characters as blanks, trimmed.
-    std::string release()
-    {
-        if (!mFile) return mText;
-        std::fflush(stderr);
-        restore();
-        std::rewind(mFile);
-        for (int c; (c = std::fgetc(mFile)) != EOF && mText.size() < 400;) mText += std::iscntrl(c) ? ' ' : char(c);
-        std::fclose(mFile);
-        mFile = nullptr;
-        while (!mText.empty() && mText.back() == ' ') mText.pop_back();
-        return mText;
-    }
-
-private:
-    void restore()
-    {
-        if (mSaved >= 0) {
-            ::dup2(mSaved, 2);
-            ::close(mSaved);
-            mSaved = -1;
-        }
-    }
-    static inline std::mutex sMutex;
-    std::lock_guard<std::mutex> mLock;
-    std::FILE* mFile = nullptr;
-    int mSaved = -1;
-    std::string mText;
 };
 
 /// 1 or 2 from the header's first bytes (nifti_image::nifti_type says 1 for both).

@@ -1,12 +1,51 @@
 // isouq: what the scans with headers share (NIfTI, NRRD, TIFF, DICOM; docs/inputs.md "Scans
-// with headers"): sample decoding, the affine as the grid transform, the .raw-only flags.
+// with headers"): sample decoding, the affine as the grid transform, the .raw-only flags, the
+// capture of what their libraries print.
 #include "SourcesInternal.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 
 namespace isouq::sources_internal {
+
+namespace {
+std::mutex sStderrMutex;
+}
+
+StderrCapture::StderrCapture() : mLock(sStderrMutex)
+{
+    std::fflush(stderr);
+    mFile = std::tmpfile();
+    mSaved = mFile ? ::dup(2) : -1;
+    if (mSaved < 0 || ::dup2(::fileno(mFile), 2) < 0) restore();
+}
+
+std::string StderrCapture::release()
+{
+    if (!mFile) return mText;
+    std::fflush(stderr);
+    restore();
+    std::rewind(mFile);
+    for (int c; (c = std::fgetc(mFile)) != EOF && mText.size() < 400;) mText += std::iscntrl(c) ? ' ' : char(c);
+    std::fclose(mFile);
+    mFile = nullptr;
+    while (!mText.empty() && mText.back() == ' ') mText.pop_back();
+    if (mLock.owns_lock()) mLock.unlock();
+    return mText;
+}
+
+void StderrCapture::restore()
+{
+    if (mSaved >= 0) {
+        ::dup2(mSaved, 2);
+        ::close(mSaved);
+        mSaved = -1;
+    }
+}
 
 std::size_t sampleBytes(SampleType type)
 {

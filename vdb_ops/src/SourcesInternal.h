@@ -11,8 +11,10 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <cstdio>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -36,6 +38,29 @@ public:
 
 /// The size of a regular, non-empty file. @throw InputError (missing, a directory, empty).
 std::uint64_t fileSize(const std::string& path);
+
+/// Some reader libraries print to the standard error stream whatever they are told (nifticlib's
+/// "** ERROR: ...", libjpeg's messages from GDCM's trial decoders), which would make a second
+/// error line (SPEC §8). While one lives, file descriptor 2 goes to a temporary file (one at a
+/// time: the descriptor is the process's); release() gives back stderr and what was printed.
+class StderrCapture {
+public:
+    StderrCapture();
+    ~StderrCapture() { release(); }
+    StderrCapture(const StderrCapture&) = delete;
+    StderrCapture& operator=(const StderrCapture&) = delete;
+
+    /// Stderr back; what was printed meanwhile, control characters as blanks, trimmed, at most
+    /// 400 characters.
+    std::string release();
+
+private:
+    void restore();
+    std::unique_lock<std::mutex> mLock;
+    std::FILE* mFile = nullptr;
+    int mSaved = -1;
+    std::string mText;
+};
 
 /// Case-insensitive suffix test (".vdb", ".RAW").
 bool endsWith(const std::string& s, const std::string& suffix);
