@@ -8,6 +8,8 @@
 # mesher plus the copy into Blender.
 
 import json
+import queue
+import threading
 import time
 
 import bpy
@@ -18,8 +20,10 @@ from . import attributes, native, views
 DEBOUNCE = 0.03                 # s after the last change before re-meshing
 VOLUME_CACHE = 2                # loaded volumes kept (input, grid, resolution)
 REQUEST_KEY = "isouq_request"   # Object custom property: the request the object was meshed with
+REST = 0.25                     # s after an update, with no change since, to fill the columns not shown
 
 _volumes = {}                   # (input, grid, resolution) -> isouq_native.Volume, oldest first
+_later = {}                     # obj, data, columns: what the last update left to fill (complete)
 _pending = {"remesh": False, "views": False, "since": None}
 last_timing = {}                # the last update: load_ms, mesh_ms, edges_ms (thread), fill_ms, views_ms,
                                 # depsgraph_ms, blender_ms (their sum), total_ms, vertices
@@ -53,18 +57,20 @@ def schedule(context, remesh=True):
         bpy.app.timers.register(_tick, first_interval=DEBOUNCE)
 
 
-_running = {}   # the mesh being made off the UI thread: thread, obj, settings, result, error
+_running = {}   # "update": the _Update being made on the worker thread
 _last_triangles = {}  # request (JSON) -> the last live mesh's triangles
+_jobs = queue.Queue()
+_worker = []    # the worker thread, started on first use
 
 
 def _tick():
-    """The timer: applies a finished background mesh, starts the next one, or redoes the views;
-    polls every 10 ms while a mesh is being made (the UI keeps running meanwhile)."""
+    """The timer: applies a background mesh once it is made, starts the next one, or redoes
+    the views; polls every 10 ms while a mesh is being made (the UI keeps running meanwhile)."""
     context = bpy.context
     if _running:
-        if _running["thread"].is_alive():
+        if not _running["update"].meshed.is_set():
             return 0.01
-        _apply_running(context)
+        _apply_update(context, _running.pop("update"))
     if not _pending["views"]:
         return None
     obj = target(context)
@@ -80,69 +86,111 @@ def _tick():
     return 0.01
 
 
+class _Update:
+    """One re-mesh, made on the worker thread (the module releases the GIL): first the mesh
+    (then `meshed` is set and the main thread starts copying it into Blender), then its edge
+    table, which the copy waits for last (attributes.fill_mesh). Blender data is only touched on
+    the main thread."""
+
+    def __init__(self, obj, request, isovalue, method, since):
+        self.obj, self.request, self.isovalue, self.method = obj, request, isovalue, method
+        self.since, self.start = since, time.perf_counter()
+        self.meshed, self.done = threading.Event(), threading.Event()
+        self.mesh = self.edges = self.error = None
+        self.timing = {}
+
+    def run(self, module):
+        try:
+            start = time.perf_counter()
+            vol = volume(module, self.request)
+            loaded = time.perf_counter()
+            mesh = module.mesh(vol, isovalue=vol.isovalue if self.isovalue is None else self.isovalue,
+                               method=self.method, summary=False)
+            meshed = time.perf_counter()
+            self.timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded))
+            # The same triangles as the last mesh (a new method): fill_mesh keeps the faces and
+            # edges, so no edge table is made.
+            key = json.dumps(self.request, sort_keys=True)
+            previous = _last_triangles.get(key)
+            same = previous is not None and np.array_equal(previous, mesh.triangles)
+            _last_triangles.clear()
+            _last_triangles[key] = mesh.triangles
+            self.mesh = mesh
+            self.meshed.set()
+            self.edges = (None, None) if same else mesh.edges()
+            self.timing["edges_ms"] = 1e3 * (time.perf_counter() - meshed)
+        except Exception as e:  # InputError etc.: shown on the object
+            self.error = str(e)
+        finally:
+            self.meshed.set()
+            self.done.set()
+
+    def wait_edges(self):
+        """The edge table (fill_mesh calls this once the faces and attributes are in)."""
+        waiting = time.perf_counter()
+        self.done.wait()
+        self.timing["edges_wait_ms"] = 1e3 * (time.perf_counter() - waiting)
+        if self.error:
+            raise RuntimeError(self.error)
+        return self.edges
+
+
+def _serve():
+    while True:
+        update, module = _jobs.get()
+        update.run(module)
+
+
+def _post(update, module):
+    """Runs `update` on the one live worker thread. One thread for every update, not one each:
+    the module keeps a worker, its TBB arena and the edge table's scratch per calling thread
+    (python/src/module.cc), which a new thread would make again."""
+    if not _worker:
+        _worker.append(threading.Thread(target=_serve, name="isouq live", daemon=True))
+        _worker[0].start()
+    _jobs.put((update, module))
+
+
 def _start(context, obj, since):
-    """Meshes on a thread (the module releases the GIL): Blender data is only touched later,
-    on the main thread, by _apply_running."""
-    import threading
+    """Starts meshing `obj` at the panel's settings on the worker; None without the module."""
     module = native.load()
     if module is None:
         obj["isouq_live_error"] = f"live mode needs the isouq Python module ({native.error()})"
-        return
+        return None
     s = context.scene.isouq
-    request = json.loads(obj[REQUEST_KEY])
-    settings = (s.isovalue if s.use_isovalue else None, s.method)
-    _running.update(obj=obj, since=since, start=time.perf_counter(), result=None, error=None)
-
-    def work():
-        try:
-            _running["result"] = _mesh(module, request, *settings)
-        except Exception as e:  # InputError etc.: shown on the object
-            _running["error"] = str(e)
-
-    _running["thread"] = threading.Thread(target=work, daemon=True)
-    _running["thread"].start()
+    update = _Update(obj, json.loads(obj[REQUEST_KEY]), s.isovalue if s.use_isovalue else None,
+                     s.method, since)
+    _running["update"] = update
+    _post(update, module)
+    return update
 
 
-def _mesh(module, request, isovalue, method):
-    start = time.perf_counter()
-    vol = volume(module, request)
-    loaded = time.perf_counter()
-    mesh = module.mesh(vol, isovalue=vol.isovalue if isovalue is None else isovalue, method=method,
-                       summary=False)
-    meshed = time.perf_counter()
-    # The edge table on this thread too (Blender then computes none), unless the triangles are
-    # the last mesh's (a new method): attributes.fill_mesh then keeps the faces and edges.
-    previous = _last_triangles.get(json.dumps(request, sort_keys=True))
-    same = previous is not None and np.array_equal(previous, mesh.triangles)
-    edges = (None, None) if same else mesh.edges()
-    _last_triangles.clear()
-    _last_triangles[json.dumps(request, sort_keys=True)] = mesh.triangles
-    timing = {"load_ms": 1e3 * (loaded - start), "mesh_ms": 1e3 * (meshed - loaded),
-              "edges_ms": 1e3 * (time.perf_counter() - meshed)}
-    return mesh, edges, timing
-
-
-def _apply_running(context):
-    run = dict(_running)
-    _running.clear()
-    obj = run["obj"]
+def _apply_update(context, update):
+    """A made mesh into its object (main thread); errors are shown on the object."""
+    obj = update.obj
     try:
         obj.name  # the object may have been deleted meanwhile
     except ReferenceError:
+        update.done.wait()
         return
-    if run["error"]:
-        obj["isouq_live_error"] = run["error"]
+    if update.error:
+        obj["isouq_live_error"] = update.error
         return
-    _apply(context, obj, *run["result"], start=run["start"])
-    last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - run["since"])
+    try:
+        _apply(context, obj, update)
+    except (ValueError, views.ViewError, RuntimeError) as e:
+        obj["isouq_live_error"] = str(e)
+        return
+    last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - update.since)
 
 
 def flush(context):
     """Runs what schedule() queued now, on this thread (the timer does it in the background;
     scripts and tests call this). Returns last_timing, or None if nothing was queued."""
     if _running:
-        _running["thread"].join()
-        _apply_running(context)
+        made = _running.pop("update")
+        made.meshed.wait()
+        _apply_update(context, made)
     if not _pending["views"]:
         return None
     remesh = _pending["remesh"]
@@ -160,6 +208,7 @@ def flush(context):
         obj["isouq_live_error"] = str(e)
         return None
     last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - since)
+    complete(context)  # scripts get every column (timed apart: rest_ms)
     return last_timing
 
 
@@ -174,24 +223,28 @@ def volume(module, request):
     return _volumes[key]
 
 
-def update(context, obj):
+def update(context, obj, since=None):
     """Meshes `obj`'s volume at the panel's isovalue and method and puts the result in obj.data
     (geometry and every attribute, in place: materials and modifiers stay), then redoes its views."""
-    module = native.load()
-    if module is None:
+    if native.load() is None:
         raise RuntimeError(f"live mode needs the isouq Python module ({native.error()})")
-    s = context.scene.isouq
-    start = time.perf_counter()
-    result = _mesh(module, json.loads(obj[REQUEST_KEY]), s.isovalue if s.use_isovalue else None,
-                   s.method)
-    _apply(context, obj, *result, start=start)
+    made = _start(context, obj, since or time.perf_counter())
+    _running.pop("update")
+    made.meshed.wait()
+    if made.error:
+        raise RuntimeError(made.error)
+    _apply(context, obj, made)
 
 
-def _apply(context, obj, mesh, edges, timing, start):
+def _apply(context, obj, update):
     """The new mesh into obj.data, its views redone, the depsgraph updated; the timings kept."""
+    mesh = update.mesh
     applying = time.perf_counter()
-    attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh, edges))
+    _later.clear()  # the last update's columns, if still left out, are replaced now
+    later = attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh, update.wait_edges),
+                                 now=shown_columns(context, obj))
     filled = time.perf_counter()
+    update.done.wait()  # same faces: fill_mesh asked for no edges, the worker is finishing
     attributes.remember_primary_positions(obj.data)
     obj.isouq.method_shown = mesh.method
     obj.isouq.summary = json.dumps({"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
@@ -201,8 +254,54 @@ def _apply(context, obj, mesh, edges, timing, start):
     viewed = time.perf_counter()
     context.view_layer.update()
     done = time.perf_counter()
-    last_timing.update(timing, fill_ms=1e3 * (filled - applying), views_ms=1e3 * (viewed - filled),
+    last_timing.clear()
+    last_timing.update({"edges_wait_ms": 0.0, **update.timing}, fill_ms=1e3 * (filled - applying), views_ms=1e3 * (viewed - filled),
                        depsgraph_ms=1e3 * (done - viewed), blender_ms=1e3 * (done - applying),
-                       total_ms=1e3 * (done - start), vertices=len(mesh.vertices))
+                       total_ms=1e3 * (done - update.start), vertices=len(mesh.vertices))
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]
+    if later:
+        _later.update(obj=obj, data=obj.data, columns=later)
+        if not bpy.app.timers.is_registered(_complete_tick):
+            bpy.app.timers.register(_complete_tick, first_interval=REST)
+
+
+def shown_columns(context, obj):
+    """The attributes the object's views read now, which an update fills at once: those its
+    materials read (the heat map's measure, C1's, C6's hidden flags) and C1's measure; None
+    (every one) under C3 methods or on a comparison copy, which read the t and edge columns."""
+    if obj.get("isouq_view_methods") or obj.isouq.role == "COMPARE":
+        return None
+    names = {context.scene.isouq.measure}
+    for mat in obj.data.materials:
+        if mat is not None and mat.node_tree is not None:
+            names.update(n.attribute_name for n in mat.node_tree.nodes if n.type == "ATTRIBUTE")
+    return names
+
+
+def complete(context=None):
+    """Fills the columns the last update left out (shown_columns), if any, and updates the
+    depsgraph; operators call it before they read the object (operators._ObjectOperator)."""
+    if not _later:
+        return None
+    obj, data, columns = _later.pop("obj"), _later.pop("data"), _later.pop("columns")
+    try:
+        same = obj.data == data
+    except ReferenceError:  # deleted meanwhile
+        return None
+    if not same:
+        return None
+    start = time.perf_counter()
+    attributes.fill_columns(data, columns)
+    (context or bpy.context).view_layer.update()
+    last_timing["rest_ms"] = 1e3 * (time.perf_counter() - start)
+    last_timing["rest_columns"] = len(columns)
+    return last_timing
+
+
+def _complete_tick():
+    """The timer that completes an update REST s after it, once no other change is waiting."""
+    if _running or _pending["views"]:
+        return REST
+    complete()
+    return None
