@@ -114,7 +114,7 @@ def fill_mesh(me, mesh, checked=False, now=None):
     if same:
         me.update()
     else:  # last, so an edge table made meanwhile on another thread (live mode) is waited for least
-        _fill_edges(me, mesh)
+        _fill_edges(me, mesh, checked)
     me["isouq_ply_types"] = json.dumps(types)
     if mesh.index_to_world is not None:
         me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
@@ -163,15 +163,16 @@ def _fill_faces(me, mesh):
     _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.uint32, copy=False), mesh.face_count)
 
 
-def _fill_edges(me, mesh):
+def _fill_edges(me, mesh, checked=False):
     """The edges of the faces _fill_faces set: the given table, else Blender's. `mesh.edges` may
     be a function that returns (edges, corner_edges) or (None, None): live mode's table, made on
-    its thread while the faces and attributes were filled. Such a table is checked on arrival; if
-    it does not fit (ValueError) or the function raises, `me` is left empty and the error raised."""
+    its thread while the faces and attributes were filled. Such a table is checked on arrival
+    (unless `checked`: the function checked it); if it does not fit (ValueError) or the function
+    raises, `me` is left empty and the error raised."""
     if callable(mesh.edges):
         try:
             mesh.edges, mesh.corner_edges = mesh.edges()
-            if mesh.edges is not None:
+            if mesh.edges is not None and not checked:
                 check_edges(mesh)
         except Exception:
             me.clear_geometry()
@@ -242,10 +243,12 @@ def stored_positions(me):
     return out.reshape(-1, 3)
 
 
-def remember_primary_positions(me):
+def remember_primary_positions(me, positions=None):
+    """`positions`: the ones just set, when the caller has them (not read back)."""
     if me.attributes.get("isouq_primary_position") is None:
         attr = me.attributes.new("isouq_primary_position", "FLOAT_VECTOR", "POINT")
-        _set_checked(attr.data, "vector", get_positions(me), 3 * len(me.vertices))
+        positions = get_positions(me) if positions is None else positions.astype(np.float32, copy=False)
+        _set_checked(attr.data, "vector", positions, 3 * len(me.vertices))
 
 
 def index_to_world(me, primary_column):

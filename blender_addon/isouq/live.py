@@ -7,6 +7,7 @@
 # keep=non_constant: every isovalue meshes as the full data), so one update is one pass of the
 # mesher plus the copy into Blender.
 
+import dataclasses
 import json
 import queue
 import threading
@@ -92,11 +93,13 @@ class _Update:
     table, which the copy waits for last (attributes.fill_mesh). Blender data is only touched on
     the main thread."""
 
-    def __init__(self, obj, request, isovalue, method, since):
+    def __init__(self, obj, request, isovalue, method, since, shown=None, mesher_pass=("full", None)):
         self.obj, self.request, self.isovalue, self.method = obj, request, isovalue, method
+        self.shown = shown   # the attributes to fill at once (fill_mesh's `now`)
+        self.pass_name, self.cheaper = mesher_pass  # _pass_for: arguments of a cheaper pass, or None
         self.since, self.start = since, time.perf_counter()
         self.meshed, self.done = threading.Event(), threading.Event()
-        self.mesh = self.edges = self.error = None
+        self.mesh = self.module_mesh = self.edges = self.error = None
         self.timing = {}
 
     def run(self, module):
@@ -105,7 +108,7 @@ class _Update:
             vol = volume(module, self.request)
             loaded = time.perf_counter()
             mesh = module.mesh(vol, isovalue=vol.isovalue if self.isovalue is None else self.isovalue,
-                               method=self.method, summary=False)
+                               method=self.method, summary=False, **(self.cheaper or {}))
             meshed = time.perf_counter()
             self.timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded))
             # The same triangles as the last mesh (a new method): fill_mesh keeps the faces and
@@ -115,10 +118,20 @@ class _Update:
             same = previous is not None and np.array_equal(previous, mesh.triangles)
             _last_triangles.clear()
             _last_triangles[key] = mesh.triangles
-            self.mesh = mesh
+            # What fill_mesh needs, checked here rather than on Blender's thread.
+            self.mesh = native.to_isouq_mesh(mesh, self.wait_edges)
+            attributes.check_mesh(self.mesh)
+            self.module_mesh = mesh
+            checked = time.perf_counter()
+            self.timing["check_ms"] = 1e3 * (checked - meshed)
             self.meshed.set()
-            self.edges = (None, None) if same else mesh.edges()
-            self.timing["edges_ms"] = 1e3 * (time.perf_counter() - meshed)
+            if same:
+                self.edges = (None, None)
+            else:
+                self.edges = mesh.edges()
+                attributes.check_edges(dataclasses.replace(self.mesh, edges=self.edges[0],
+                                                           corner_edges=self.edges[1]))
+            self.timing["edges_ms"] = 1e3 * (time.perf_counter() - checked)
         except Exception as e:  # InputError etc.: shown on the object
             self.error = str(e)
         finally:
@@ -151,15 +164,17 @@ def _post(update, module):
     _jobs.put((update, module))
 
 
-def _start(context, obj, since):
-    """Starts meshing `obj` at the panel's settings on the worker; None without the module."""
+def _start(context, obj, since, whole=False):
+    """Starts meshing `obj` at the panel's settings on the worker (`whole`: every column, the
+    full pass); None without the module."""
     module = native.load()
     if module is None:
         obj["isouq_live_error"] = f"live mode needs the isouq Python module ({native.error()})"
         return None
     s = context.scene.isouq
+    shown = None if whole else shown_columns(context, obj)
     update = _Update(obj, json.loads(obj[REQUEST_KEY]), s.isovalue if s.use_isovalue else None,
-                     s.method, since)
+                     s.method, since, shown, ("full", None) if whole else _pass_for(module, obj, s.method, shown))
     _running["update"] = update
     _post(update, module)
     return update
@@ -177,11 +192,12 @@ def _apply_update(context, update):
         obj["isouq_live_error"] = update.error
         return
     try:
-        _apply(context, obj, update)
+        timing = _apply(context, obj, update)
     except (ValueError, views.ViewError, RuntimeError) as e:
         obj["isouq_live_error"] = str(e)
         return
-    last_timing["since_change_ms"] = 1e3 * (time.perf_counter() - update.since)
+    last_timing.clear()
+    last_timing.update(timing, since_change_ms=1e3 * (time.perf_counter() - update.since))
 
 
 def flush(context):
@@ -201,7 +217,8 @@ def flush(context):
         return None
     try:
         if remesh:
-            update(context, obj)
+            last_timing.clear()
+            last_timing.update(update(context, obj))
         else:
             views.reapply(context, obj)
     except (ValueError, views.ViewError, RuntimeError) as e:
@@ -223,29 +240,29 @@ def volume(module, request):
     return _volumes[key]
 
 
-def update(context, obj, since=None):
+def update(context, obj, whole=False):
     """Meshes `obj`'s volume at the panel's isovalue and method and puts the result in obj.data
-    (geometry and every attribute, in place: materials and modifiers stay), then redoes its views."""
+    (geometry and the shown attributes, or with `whole` every one, in place: materials and
+    modifiers stay), then redoes its views. Returns the timings."""
     if native.load() is None:
         raise RuntimeError(f"live mode needs the isouq Python module ({native.error()})")
-    made = _start(context, obj, since or time.perf_counter())
+    made = _start(context, obj, time.perf_counter(), whole)
     _running.pop("update")
     made.meshed.wait()
     if made.error:
         raise RuntimeError(made.error)
-    _apply(context, obj, made)
+    return _apply(context, obj, made)
 
 
 def _apply(context, obj, update):
     """The new mesh into obj.data, its views redone, the depsgraph updated; the timings kept."""
-    mesh = update.mesh
+    mesh = update.module_mesh
     applying = time.perf_counter()
     _later.clear()  # the last update's columns, if still left out, are replaced now
-    later = attributes.fill_mesh(obj.data, native.to_isouq_mesh(mesh, update.wait_edges),
-                                 now=shown_columns(context, obj))
+    later = attributes.fill_mesh(obj.data, update.mesh, checked=True, now=update.shown)
     filled = time.perf_counter()
     update.done.wait()  # same faces: fill_mesh asked for no edges, the worker is finishing
-    attributes.remember_primary_positions(obj.data)
+    attributes.remember_primary_positions(obj.data, update.mesh.positions)
     obj.isouq.method_shown = mesh.method
     obj.isouq.summary = json.dumps({"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
                                     "isovalue": float(mesh.isovalue), "method": mesh.method, "live": True})
@@ -254,16 +271,17 @@ def _apply(context, obj, update):
     viewed = time.perf_counter()
     context.view_layer.update()
     done = time.perf_counter()
-    last_timing.clear()
-    last_timing.update({"edges_wait_ms": 0.0, **update.timing}, fill_ms=1e3 * (filled - applying), views_ms=1e3 * (viewed - filled),
-                       depsgraph_ms=1e3 * (done - viewed), blender_ms=1e3 * (done - applying),
-                       total_ms=1e3 * (done - update.start), vertices=len(mesh.vertices))
+    timing = dict({"edges_wait_ms": 0.0, **update.timing}, fill_ms=1e3 * (filled - applying),
+                  views_ms=1e3 * (viewed - filled), depsgraph_ms=1e3 * (done - viewed),
+                  blender_ms=1e3 * (done - applying), total_ms=1e3 * (done - update.start),
+                  vertices=len(mesh.vertices), mesher_pass=update.pass_name)
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]
-    if later:
-        _later.update(obj=obj, data=obj.data, columns=later)
+    if later or update.cheaper:  # a cheaper pass: the whole mesh later is a full pass again
+        _later.update(obj=obj, data=obj.data, columns=later, remesh=bool(update.cheaper))
         if not bpy.app.timers.is_registered(_complete_tick):
             bpy.app.timers.register(_complete_tick, first_interval=REST)
+    return timing
 
 
 def shown_columns(context, obj):
@@ -279,23 +297,54 @@ def shown_columns(context, obj):
     return names
 
 
+# Passes cheaper than the full one, cheapest first: name, mesh() arguments.
+CHEAPER_PASSES = (("linear", {"linear_only": True}), ("estimate", {"high_order": False}))
+_pass_columns = {}  # pass name -> the vertex columns it gives
+
+
+def _pass_for(module, obj, method, shown):
+    """(name, mesh() arguments) of the cheapest pass that gives every shown column `obj` has
+    (("full", None): the full pass). With the linear method and no high-order column shown:
+    the linear-only pass or the paper's extraction plus estimate (high_order=False; err_est,
+    err_bound), under half the full pass's time, the same triangles, positions and columns
+    (tests/python/test_python_module.py)."""
+    if method == "linear" and shown is not None:
+        needed = shown & _columns_of(module, "full", {})  # a material may read what no pass gives
+        for name, arguments in CHEAPER_PASSES:
+            if needed <= _columns_of(module, name, arguments):
+                return name, arguments
+    return "full", None
+
+
+def _columns_of(module, name, arguments):
+    """The vertex columns of a pass, asked of the module once (no column list kept here)."""
+    if name not in _pass_columns:
+        _pass_columns[name] = set(module.mesh("field:tangle", resolution=8, method="linear",
+                                              summary=False, **arguments).columns)
+    return _pass_columns[name]
+
+
 def complete(context=None):
     """Fills the columns the last update left out (shown_columns), if any, and updates the
     depsgraph; operators call it before they read the object (operators._ObjectOperator)."""
     if not _later:
         return None
-    obj, data, columns = _later.pop("obj"), _later.pop("data"), _later.pop("columns")
+    obj, data, columns, remesh = (_later.pop(k) for k in ("obj", "data", "columns", "remesh"))
     try:
         same = obj.data == data
     except ReferenceError:  # deleted meanwhile
         return None
     if not same:
         return None
+    context = context or bpy.context
     start = time.perf_counter()
-    attributes.fill_columns(data, columns)
-    (context or bpy.context).view_layer.update()
-    last_timing["rest_ms"] = 1e3 * (time.perf_counter() - start)
-    last_timing["rest_columns"] = len(columns)
+    if remesh:
+        update(context, obj, whole=True)
+    else:
+        attributes.fill_columns(data, columns)
+        context.view_layer.update()
+    last_timing.update(rest_ms=1e3 * (time.perf_counter() - start), rest_columns=len(columns),
+                       rest_remeshed=remesh)
     return last_timing
 
 
