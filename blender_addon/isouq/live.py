@@ -278,7 +278,8 @@ def _apply(context, obj, update):
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]
     if later or update.cheaper:  # a cheaper pass: the whole mesh later is a full pass again
-        _later.update(obj=obj, data=obj.data, columns=later, remesh=bool(update.cheaper))
+        _later.update(obj=obj, data=obj.data, columns=later, remesh=bool(update.cheaper),
+                      at=time.perf_counter())
         if not bpy.app.timers.is_registered(_complete_tick):
             bpy.app.timers.register(_complete_tick, first_interval=REST)
     return timing
@@ -329,7 +330,9 @@ def complete(context=None):
     depsgraph; operators call it before they read the object (operators._ObjectOperator)."""
     if not _later:
         return None
-    obj, data, columns, remesh = (_later.pop(k) for k in ("obj", "data", "columns", "remesh"))
+    obj, data, columns, remesh = (_later[k] for k in ("obj", "data", "columns", "remesh"))
+    made = _later.get("update")
+    _later.clear()
     try:
         same = obj.data == data
     except ReferenceError:  # deleted meanwhile
@@ -338,8 +341,13 @@ def complete(context=None):
         return None
     context = context or bpy.context
     start = time.perf_counter()
-    if remesh:
+    if remesh and made is None:
         update(context, obj, whole=True)
+    elif remesh:
+        made.meshed.wait()
+        if made.error:
+            raise RuntimeError(made.error)
+        _apply(context, obj, made)
     else:
         attributes.fill_columns(data, columns)
         context.view_layer.update()
@@ -349,8 +357,32 @@ def complete(context=None):
 
 
 def _complete_tick():
-    """The timer that completes an update REST s after it, once no other change is waiting."""
+    """The timer that completes an update REST s after it, once no other change is waiting; the
+    full pass a cheaper one leaves is made on the worker, like any update (polled every 10 ms)."""
+    if not _later:
+        return None
     if _running or _pending["views"]:
         return REST
-    complete()
+    wait = _later["at"] + REST - time.perf_counter()
+    if wait > 0:
+        return wait
+    if _later["remesh"] and "update" not in _later:
+        try:
+            _later["obj"].name
+        except ReferenceError:  # deleted meanwhile
+            _later.clear()
+            return None
+        made = _start(bpy.context, _later["obj"], time.perf_counter(), whole=True)
+        if made is None:
+            _later.clear()
+            return None
+        _later["update"] = _running.pop("update")  # applied here, not by _tick
+        return 0.01
+    if "update" in _later and not _later["update"].meshed.is_set():
+        return 0.01
+    obj = _later["obj"]
+    try:
+        complete()
+    except (ValueError, views.ViewError, RuntimeError) as e:
+        obj["isouq_live_error"] = str(e)
     return None
