@@ -2,10 +2,11 @@
 # the method in the panel re-meshes the live object in process (the isouq module, native.py)
 # and replaces its mesh data in place, like Blender's Volume to Mesh modifier; changing the
 # threshold redoes its views. Changes are debounced (a timer DEBOUNCE s after the last one); the
-# mesher runs on a thread (the module releases the GIL) while the UI goes on, and only the copy
-# into Blender runs on the main thread. The volume is loaded once per input (isouq.load,
-# keep=non_constant: every isovalue meshes as the full data), so one update is one pass of the
-# mesher plus the copy into Blender.
+# mesher runs on one worker thread (the module releases the GIL) while the UI goes on, and only
+# the copy into Blender runs on the main thread. The volume is loaded once per input
+# (isouq.load, keep=non_constant: every isovalue meshes as the full data), so one update is one
+# pass of the mesher plus the copy into Blender: of the columns the views show (shown_columns),
+# from the cheapest pass that gives them (_pass_for); the rest follows REST s later (complete).
 
 import dataclasses
 import json
@@ -24,10 +25,13 @@ REQUEST_KEY = "isouq_request"   # Object custom property: the request the object
 REST = 0.25                     # s after an update, with no change since, to fill the columns not shown
 
 _volumes = {}                   # (input, grid, resolution) -> isouq_native.Volume, oldest first
-_later = {}                     # obj, data, columns: what the last update left to fill (complete)
+_later = {}                     # what the last update left (complete): obj, data, columns, remesh
+                                # (a cheaper pass ran), at (when), update (the full pass, if started)
 _pending = {"remesh": False, "views": False, "since": None}
-last_timing = {}                # the last update: load_ms, mesh_ms, edges_ms (thread), fill_ms, views_ms,
-                                # depsgraph_ms, blender_ms (their sum), total_ms, vertices
+last_timing = {}                # the last update: load_ms, mesh_ms, check_ms, edges_ms (worker),
+                                # edges_wait_ms, fill_ms, views_ms, depsgraph_ms, blender_ms (their
+                                # sum), total_ms, since_change_ms, vertices, mesher_pass; rest_ms,
+                                # rest_columns, rest_remeshed once complete() ran
 
 
 def remember(obj, request):
