@@ -30,7 +30,9 @@ _later = {}                     # what the last update left (complete): obj, dat
 _pending = {"remesh": False, "views": False, "since": None}
 last_timing = {}                # the last update: load_ms, mesh_ms, check_ms, edges_ms (worker),
                                 # edges_wait_ms, fill_ms, views_ms, depsgraph_ms, blender_ms (their
-                                # sum), total_ms, since_change_ms, vertices, mesher_pass; rest_ms,
+                                # sum), total_ms, since_change_ms, vertices, mesher_pass, mesh_cpu_ms
+                                # and cpu_ms (CPU time of every thread of Blender's process: the
+                                # mesher alone, the whole update; walls vary with the load), rest_ms,
                                 # rest_columns, rest_remeshed once complete() ran
 
 
@@ -101,7 +103,7 @@ class _Update:
         self.obj, self.request, self.isovalue, self.method = obj, request, isovalue, method
         self.shown = shown   # the attributes to fill at once (fill_mesh's `now`)
         self.pass_name, self.cheaper = mesher_pass  # _pass_for: arguments of a cheaper pass, or None
-        self.since, self.start = since, time.perf_counter()
+        self.since, self.start, self.cpu = since, time.perf_counter(), time.process_time()
         self.meshed, self.done = threading.Event(), threading.Event()
         self.mesh = self.module_mesh = self.edges = self.error = None
         self.timing = {}
@@ -110,11 +112,12 @@ class _Update:
         try:
             start = time.perf_counter()
             vol = volume(module, self.request)
-            loaded = time.perf_counter()
+            loaded, cpu = time.perf_counter(), time.process_time()
             mesh = module.mesh(vol, isovalue=vol.isovalue if self.isovalue is None else self.isovalue,
                                method=self.method, summary=False, **(self.cheaper or {}))
             meshed = time.perf_counter()
-            self.timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded))
+            self.timing.update(load_ms=1e3 * (loaded - start), mesh_ms=1e3 * (meshed - loaded),
+                               mesh_cpu_ms=1e3 * (time.process_time() - cpu))
             # The same triangles as the last mesh (a new method): fill_mesh keeps the faces and
             # edges, so no edge table is made.
             key = json.dumps(self.request, sort_keys=True)
@@ -278,6 +281,7 @@ def _apply(context, obj, update):
     timing = dict({"edges_wait_ms": 0.0, **update.timing}, fill_ms=1e3 * (filled - applying),
                   views_ms=1e3 * (viewed - filled), depsgraph_ms=1e3 * (done - viewed),
                   blender_ms=1e3 * (done - applying), total_ms=1e3 * (done - update.start),
+                  cpu_ms=1e3 * (time.process_time() - update.cpu),
                   vertices=len(mesh.vertices), mesher_pass=update.pass_name)
     if "isouq_live_error" in obj:
         del obj["isouq_live_error"]

@@ -231,7 +231,7 @@ def test_live_update_times(module, no_subprocess, empty_scene, name, grid, isova
         pytest.skip(f"{path} not found")
     obj, load, rows, methods, linear = live_timings(empty_scene, path, isovalues, grid=grid)
     keys = ("mesh_ms", "edges_ms", "edges_wait_ms", "fill_ms", "views_ms", "depsgraph_ms", "blender_ms",
-            "total_ms", "since_change_ms", "rest_ms")
+            "total_ms", "since_change_ms", "rest_ms", "mesh_cpu_ms", "cpu_ms")
     median = {key: float(np.median([r.get(key, 0.0) for r in rows])) for key in keys}
     report = {"input": name, "first_update_ms": load["total_ms"], "load_ms": load["load_ms"],
               "vertices": [r["vertices"] for r in rows[:len(isovalues) - 1]], **median,
