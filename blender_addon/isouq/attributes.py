@@ -42,22 +42,27 @@ def check_mesh(mesh):
             raise ValueError("face corner table is inconsistent")
         if mesh.corners.min() < 0 or mesh.corners.max() >= mesh.vertex_count:
             raise ValueError("a face corner is not a vertex")
-    if mesh.edges is not None:
-        edges, corner_edges = np.asarray(mesh.edges), np.asarray(mesh.corner_edges)
-        if (edges.ndim != 2 or edges.shape[1] != 2 or len(corner_edges) != len(mesh.corners)
-                or (len(edges) and edges.max() >= mesh.vertex_count)
-                or (len(corner_edges) and corner_edges.max() >= len(edges))):
-            raise ValueError("the edge table is inconsistent")
-        tri = mesh.corners.reshape(-1, 3) if np.all(mesh.loop_total == 3) else None
-        if tri is not None and np.any((tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2])
-                                      | (tri[:, 0] == tri[:, 2])):
-            raise ValueError("a triangle repeats a vertex")
+    if mesh.edges is not None and not callable(mesh.edges):
+        check_edges(mesh)
     for domain, table, size in (("vertex", mesh.vertex_attributes, mesh.vertex_count),
                                 ("face", mesh.face_attributes, mesh.face_count)):
         for name, column in table.items():
             _blender_type(column)
             if len(column) != size:
                 raise ValueError(f"{domain} attribute {name}: {len(column)} values for {size}")
+
+
+def check_edges(mesh):
+    """The edge table given with `mesh` fits its vertices and corners."""
+    edges, corner_edges = np.asarray(mesh.edges), np.asarray(mesh.corner_edges)
+    if (edges.ndim != 2 or edges.shape[1] != 2 or len(corner_edges) != len(mesh.corners)
+            or (len(edges) and edges.max() >= mesh.vertex_count)
+            or (len(corner_edges) and corner_edges.max() >= len(edges))):
+        raise ValueError("the edge table is inconsistent")
+    tri = mesh.corners.reshape(-1, 3) if np.all(mesh.loop_total == 3) else None
+    if tri is not None and np.any((tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2])
+                                  | (tri[:, 0] == tri[:, 2])):
+        raise ValueError("a triangle repeats a vertex")
 
 
 def build_mesh(name, mesh):
@@ -77,10 +82,12 @@ HEADER_KEYS = ("isouq_index_to_world", "isouq_index_to_world_fitted", "isouq_iso
                "isouq_method", "isouq_ply_types")
 
 
-def fill_mesh(me, mesh, checked=False):
+def fill_mesh(me, mesh, checked=False, now=None):
     """Replaces the geometry and attributes of the existing mesh `me` by `mesh` (an IsouqMesh);
-    materials stay. Used for each frame of a sequence (sequence.py).
-    @raise ValueError, with `me` unchanged, if the data is inconsistent."""
+    materials stay. Used for each frame of a sequence (sequence.py) and by live mode. `now`: the
+    Blender names of the attributes to fill (None: every one); the others are left out and
+    returned, [(name, values, domain)], for fill_columns (live mode fills what the views show
+    first). @raise ValueError, with `me` unchanged, if the data is inconsistent."""
     if not checked:
         check_mesh(mesh)
     for key in HEADER_KEYS:
@@ -89,18 +96,25 @@ def fill_mesh(me, mesh, checked=False):
     columns = [(col, face_name(col, mesh.vertex_attributes) if domain == "FACE" else col, values, domain)
                for domain, table in (("POINT", mesh.vertex_attributes), ("FACE", mesh.face_attributes))
                for col, values in table.items()]
-    if _same_faces(me, mesh):  # e.g. live mode's new method: new positions and columns only
-        names = {name for _, name, _, _ in columns}
+    later = [(name, values, domain) for _, name, values, domain in columns
+             if now is not None and name not in now]
+    same = _same_faces(me, mesh)
+    if same:  # e.g. live mode's new method: new positions and columns only
+        names = {name for _, name, _, _ in columns if now is None or name in now}
         for stale in [a.name for a in me.attributes if a.name not in names and not a.name.startswith(".")]:
             me.attributes.remove(me.attributes[stale])  # as clear_geometry would
         _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
-        me.update()
     else:
-        _fill_geometry(me, mesh)
+        _fill_faces(me, mesh)
     types = {}
     for col, name, values, domain in columns:
-        set_attribute(me, name, values, domain)
+        if now is None or name in now:
+            set_attribute(me, name, values, domain)
         types[name] = {"ply": col, "dtype": values.dtype.str}
+    if same:
+        me.update()
+    else:  # last, so an edge table made meanwhile on another thread (live mode) is waited for least
+        _fill_edges(me, mesh, checked)
     me["isouq_ply_types"] = json.dumps(types)
     if mesh.index_to_world is not None:
         me["isouq_index_to_world"] = [float(v) for v in mesh.index_to_world.ravel()]
@@ -108,7 +122,14 @@ def fill_mesh(me, mesh, checked=False):
         me["isouq_isovalue"] = mesh.isovalue
     if mesh.method:
         me["isouq_method"] = mesh.method
-    return me
+    return later
+
+
+def fill_columns(me, later):
+    """The attributes fill_mesh left out (its return value) into `me`."""
+    for name, values, domain in later:
+        set_attribute(me, name, values, domain)
+    me.update()
 
 
 def _same_faces(me, mesh):
@@ -126,8 +147,8 @@ def _same_faces(me, mesh):
     return np.array_equal(totals, mesh.loop_total)
 
 
-def _fill_geometry(me, mesh):
-    """Replaces every vertex, corner, face and edge of `me` (its attributes go too)."""
+def _fill_faces(me, mesh):
+    """Replaces every vertex, corner and face of `me` (its attributes and edges go too)."""
     me.clear_geometry()
     me.vertices.add(mesh.vertex_count)
     _set_checked(me.vertices, "co", mesh.positions.astype(np.float32, copy=False), 3 * mesh.vertex_count)
@@ -140,13 +161,31 @@ def _fill_geometry(me, mesh):
     me.polygons.add(mesh.face_count)
     _set_checked(me.polygons, "loop_start", mesh.loop_start.astype(np.uint32, copy=False), mesh.face_count)
     _set_checked(me.polygons, "loop_total", mesh.loop_total.astype(np.uint32, copy=False), mesh.face_count)
+
+
+def _fill_edges(me, mesh, checked=False):
+    """The edges of the faces _fill_faces set: the given table, else Blender's. `mesh.edges` may
+    be a function that returns (edges, corner_edges) or (None, None): live mode's table, made on
+    its thread while the faces and attributes were filled. Such a table is checked on arrival
+    (unless `checked`: the function checked it); if it does not fit (ValueError) or the function
+    raises, `me` is left empty and the error raised."""
+    if callable(mesh.edges):
+        try:
+            mesh.edges, mesh.corner_edges = mesh.edges()
+            if mesh.edges is not None and not checked:
+                check_edges(mesh)
+        except Exception:
+            me.clear_geometry()
+            raise
     if mesh.edges is None:
         me.update(calc_edges=True)  # Blender hashes the edges (0.6 s for 1.3M corners)
-    else:  # the module's edge table: Blender then computes none (mesh.update keeps them)
-        me.edges.add(len(mesh.edges))
-        _set_checked(me.edges, "vertices", mesh.edges.astype(np.uint32, copy=False), 2 * len(mesh.edges))
-        _set_checked(me.loops, "edge_index", mesh.corner_edges.astype(np.uint32, copy=False), corners)
-        me.update()
+        return
+    # The module's edge table: Blender then computes none (mesh.update keeps them).
+    corners = len(mesh.corners)
+    me.edges.add(len(mesh.edges))
+    _set_checked(me.edges, "vertices", mesh.edges.astype(np.uint32, copy=False), 2 * len(mesh.edges))
+    _set_checked(me.loops, "edge_index", mesh.corner_edges.astype(np.uint32, copy=False), corners)
+    me.update()
 
 
 def face_name(name, vertex_attributes):
@@ -204,10 +243,12 @@ def stored_positions(me):
     return out.reshape(-1, 3)
 
 
-def remember_primary_positions(me):
+def remember_primary_positions(me, positions=None):
+    """`positions`: the ones just set, when the caller has them (not read back)."""
     if me.attributes.get("isouq_primary_position") is None:
         attr = me.attributes.new("isouq_primary_position", "FLOAT_VECTOR", "POINT")
-        _set_checked(attr.data, "vector", get_positions(me), 3 * len(me.vertices))
+        positions = get_positions(me) if positions is None else positions.astype(np.float32, copy=False)
+        _set_checked(attr.data, "vector", positions, 3 * len(me.vertices))
 
 
 def index_to_world(me, primary_column):

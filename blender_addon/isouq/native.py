@@ -101,11 +101,15 @@ def to_isouq_mesh(mesh, edges=None):
     """A module Mesh as the ply_io.IsouqMesh the add-on builds objects from (views.import_mesh,
     attributes.fill_mesh): the same arrays the PLY of that mesh holds, without the file, and
     the edge table (`mesh.edges()`, or `edges` when the caller made it already; (None, None):
-    none, Blender computes them if it needs to) so Blender computes none. Indices stay uint32,
-    the type Blender copies at once (attributes.fill_mesh)."""
+    none, Blender computes them if it needs to; a function: it gives them when fill_mesh needs
+    them, live mode's table made meanwhile on its thread) so Blender computes none. Indices stay
+    uint32, the type Blender copies at once (attributes.fill_mesh)."""
     triangles = np.asarray(mesh.triangles)
     count = len(triangles)
-    edge_table, corner_edges = mesh.edges() if edges is None else edges
+    if callable(edges):
+        edge_table, corner_edges = edges, None
+    else:
+        edge_table, corner_edges = mesh.edges() if edges is None else edges
     return ply_io.IsouqMesh(
         positions=mesh.vertices,
         loop_start=np.arange(0, 3 * count, 3, dtype=np.uint32),

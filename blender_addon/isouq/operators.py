@@ -27,6 +27,7 @@ class _ObjectOperator:
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
+        live.complete(context)  # the columns a live update left for later, before any view reads them
         try:
             obj = views.isouq_object(context)
             message = self.run(context, obj)

@@ -50,7 +50,8 @@ class IsouqMesh:
     method: str = None
     comments: list = field(default_factory=list)
     edges: np.ndarray = None              # (E, 2) unique edges and (sum(loop_total),) each
-    corner_edges: np.ndarray = None       # corner's edge, when known (the module's Mesh.edges())
+    corner_edges: np.ndarray = None       # corner's edge, when known (the module's Mesh.edges());
+                                          # edges may be a function giving both (attributes.fill_mesh)
 
     @property
     def vertex_count(self):

@@ -50,6 +50,17 @@ def arrays(obj):
     return co.reshape(-1, 3), tri.reshape(-1, 3)
 
 
+def run_timer(function):
+    """Calls a timer function as Blender would (background Blender runs no timers) until it
+    stops; returns how many times it asked to be called again."""
+    polls, wait = 0, function()
+    while wait is not None:
+        polls += 1
+        time.sleep(wait)
+        wait = function()
+    return polls
+
+
 def run_in_process(context, path, **settings):
     s = context.scene.isouq
     s.input_path = path
@@ -110,6 +121,17 @@ def test_live_isovalue_and_method_change_the_mesh(module, no_subprocess, empty_s
     expected = module.mesh(module.load("field:tangle", resolution=32), isovalue=0.2)
     assert len(after) == len(expected.vertices) != len(before)
     assert after.tobytes() == np.ascontiguousarray(expected.vertices).tobytes()
+    # The shown view's column (the heat map's err_est) at once; the others REST s later.
+    assert "err_est" in live.shown_columns(context, obj) and "t_cubic" not in live.shown_columns(context, obj)
+    assert np.array_equal(attributes.get_attribute(me, "err_est"), expected.columns["err_est"], equal_nan=True)
+    assert me.attributes.get("t_cubic") is None
+    assert bpy.app.timers.is_registered(live._complete_tick)
+    bpy.app.timers.unregister(live._complete_tick)
+    run_timer(live._complete_tick)  # REST s after the update
+    assert live.last_timing["rest_columns"] > 10
+    for name, column in expected.columns.items():
+        got = attributes.get_attribute(me, name)
+        assert np.array_equal(got, column.astype(got.dtype), equal_nan=True), name
     # The module's edge table (Mesh.edges): every triangle side once, each corner on its side.
     _, tri = arrays(obj)
     sides = {tuple(sorted(p)) for t in tri.tolist() for p in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
@@ -146,6 +168,35 @@ def test_live_isovalue_and_method_change_the_mesh(module, no_subprocess, empty_s
     assert live.flush(context) is None  # off: nothing queued
 
 
+def test_live_linear_view_meshes_the_cheaper_pass(module, no_subprocess, empty_scene):
+    """The linear method under the err_est heat map: an update runs the extraction plus
+    estimate pass (high_order=False) and fills the positions and err_est, equal to the full
+    pass's; REST s later the full pass fills every column, the faces kept."""
+    context = empty_scene
+    obj = run_in_process(context, "field:tangle", resolution=32, use_isovalue=True, isovalue=0.0,
+                         method="linear")
+    s = context.scene.isouq
+    s.live = True
+    s.isovalue = 0.2
+    bpy.app.timers.unregister(live._tick)
+    run_timer(live._tick)
+    assert live.last_timing["mesher_pass"] == "estimate"
+    me = obj.data
+    full = module.mesh(module.load("field:tangle", resolution=32), isovalue=0.2, method="linear")
+    co, tri = arrays(obj)
+    assert co.tobytes() == np.ascontiguousarray(full.vertices).tobytes()
+    assert np.array_equal(tri, full.triangles.astype(np.int32))
+    assert np.array_equal(attributes.get_attribute(me, "err_est"), full.columns["err_est"], equal_nan=True)
+    assert me.attributes.get("t_weno") is None
+    bpy.app.timers.unregister(live._complete_tick)
+    assert run_timer(live._complete_tick) >= 2  # the full pass on the worker, polled
+    assert live.last_timing["rest_remeshed"]
+    for name, column in full.columns.items():
+        got = attributes.get_attribute(me, name)
+        assert np.array_equal(got, column.astype(got.dtype), equal_nan=True), name
+    assert np.array_equal(arrays(obj)[1], tri) and me.validate() is False
+
+
 def live_timings(context, path, isovalues, **settings):
     obj = run_in_process(context, path, use_isovalue=True, isovalue=isovalues[0], **settings)
     s = context.scene.isouq
@@ -160,8 +211,14 @@ def live_timings(context, path, isovalues, **settings):
     for method in ("linear", "cubic", "weno") * 3:
         s.method = method
         methods.append(dict(live.flush(context)))
+    s.method = "linear"  # the heat map of err_est on linear crossings: the cheaper pass
+    live.flush(context)
+    linear = []
+    for k in isovalues[1:] * 3:
+        s.isovalue = k
+        linear.append(dict(live.flush(context)))
     s.live = False
-    return obj, load, rows, methods
+    return obj, load, rows, methods, linear
 
 
 @pytest.mark.parametrize("name,grid,isovalues", [
@@ -172,18 +229,20 @@ def test_live_update_times(module, no_subprocess, empty_scene, name, grid, isova
     path = os.path.join(DATA, name)
     if not os.path.isfile(path):
         pytest.skip(f"{path} not found")
-    obj, load, rows, methods = live_timings(empty_scene, path, isovalues, grid=grid)
-    keys = ("mesh_ms", "edges_ms", "fill_ms", "views_ms", "depsgraph_ms", "blender_ms", "total_ms",
-            "since_change_ms")
-    median = {key: float(np.median([r[key] for r in rows])) for key in keys}
+    obj, load, rows, methods, linear = live_timings(empty_scene, path, isovalues, grid=grid)
+    keys = ("mesh_ms", "edges_ms", "edges_wait_ms", "fill_ms", "views_ms", "depsgraph_ms", "blender_ms",
+            "total_ms", "since_change_ms", "rest_ms", "mesh_cpu_ms", "cpu_ms")
+    median = {key: float(np.median([r.get(key, 0.0) for r in rows])) for key in keys}
     report = {"input": name, "first_update_ms": load["total_ms"], "load_ms": load["load_ms"],
               "vertices": [r["vertices"] for r in rows[:len(isovalues) - 1]], **median,
-              "method_change": {key: float(np.median([r[key] for r in methods])) for key in keys}}
+              "method_change": {key: float(np.median([r.get(key, 0.0) for r in methods])) for key in keys},
+              "linear_view": {key: float(np.median([r.get(key, 0.0) for r in linear])) for key in keys}}
     print(json.dumps(report))
     out = os.environ.get("ISOUQ_LIVE_TIMINGS")
     if out:
         with open(out, "a", encoding="utf-8") as f:
             f.write(json.dumps(report) + "\n")
     assert all(r["vertices"] > 0 for r in rows)
-    assert len(obj.data.vertices) == methods[-1]["vertices"]
+    assert len(obj.data.vertices) == linear[-1]["vertices"]
+    assert {r["mesher_pass"] for r in linear} == {"estimate"} and {r["mesher_pass"] for r in rows} == {"full"}
     assert obj.data.validate() is False  # the module's edges: nothing for Blender to fix

@@ -90,6 +90,11 @@ void cookMesh(CookContext& ctx)
     settings.uncertainty = !linearOnly;
     settings.provenance = true;
     settings.method = *edgeMethodFromString(p.getString("method"));
+    // The paper's "extraction plus estimate" (sec. 4.1; SPEC §3): linear crossings, e and e_b.
+    settings.highOrder = p.getBool("high_order");
+    if (!settings.highOrder && !linearOnly && settings.method != EdgeMethod::Linear)
+        throw std::invalid_argument("parameter 'high_order': off computes no " + p.getString("method") +
+            " crossings; use method linear");
     auto out = std::make_shared<MeshData>();
     out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
     out->isovalue = settings.isovalue;
@@ -261,6 +266,10 @@ void addVolumeNodes(std::vector<NodeType>& types)
                 "Isovalue k (unset: the volume's; a dense source must be read at the same one)"),
             parm("linear_only", "Linear Only", ParmType::Bool, false, "Linear crossings only, no estimates: fastest",
                 "--linear-only"),
+            parm("high_order", "High Order", ParmType::Bool, true,
+                "Cubic and WENO crossings and their estimates and differences; off (method linear): linear "
+                "crossings with err_est and err_bound only, the paper's extraction plus estimate (Blender's "
+                "live mode while only those are shown)"),
         },
         {{"volume", "volume", "The volume to mesh"}},
         {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh});

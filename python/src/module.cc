@@ -33,6 +33,7 @@
 #include <future>
 #include <algorithm>
 #include <thread>
+#include <vector>
 
 namespace py = pybind11;
 namespace nodes = isouq::nodes;
@@ -180,6 +181,14 @@ py::dict columnsOf(const isouq::AttributeTable& table, py::handle owner)
     return out;
 }
 
+/// Scratch of edgesOf, kept per calling thread between calls: live mode builds an edge table for
+/// every update, and fresh vectors of these sizes cost more in page faults than the table
+/// (DESIGN.md "Memory and allocation"; docs/blender.md "Live mode").
+struct EdgeScratch {
+    std::vector<std::uint32_t> start, cursor, firstEdge;
+    std::vector<std::uint64_t> bucket;
+};
+
 /// The mesh's unique undirected edges and each corner's edge, for hosts that store edges
 /// (Blender's MEdge and MLoop.e; docs/blender.md "Live mode"). Corner 3t+c of triangle t runs
 /// from vertex c to vertex (c+1)%3. Edges are ordered by (lower vertex, higher vertex), so the
@@ -192,57 +201,60 @@ py::tuple edgesOf(const MeshHandle& handle)
     const std::size_t n = mesh.positions.size(), corners = 3 * mesh.triangles.size();
     if (corners >= std::size_t(std::numeric_limits<std::uint32_t>::max()))
         throw isouq::InputError("a mesh of " + std::to_string(corners) + " corners exceeds 32-bit edge indices");
+    thread_local EdgeScratch scratch;
+    EdgeScratch& s = scratch;
     py::array_t<std::uint32_t> cornerEdges{py::ssize_t(corners)};
     std::uint32_t* out = cornerEdges.mutable_data();
-    std::vector<std::uint32_t> pairs; // lower, higher per edge
+    const std::uint32_t* tri = corners ? mesh.triangles[0].asPointer() : nullptr;
+    auto ends = [tri](std::size_t c, std::uint32_t& lo, std::uint32_t& hi) {
+        const std::uint32_t a = tri[c], b = tri[c - c % 3 + (c % 3 + 1) % 3];
+        lo = std::min(a, b);
+        hi = std::max(a, b);
+    };
     {
         py::gil_scoped_release release;
-        const std::uint32_t* tri = corners ? mesh.triangles[0].asPointer() : nullptr;
-        auto ends = [tri](std::size_t c, std::uint32_t& lo, std::uint32_t& hi) {
-            const std::uint32_t a = tri[c], b = tri[c - c % 3 + (c % 3 + 1) % 3];
-            lo = std::min(a, b);
-            hi = std::max(a, b);
-        };
-        std::vector<std::size_t> start(n + 1, 0);
+        s.start.assign(n + 1, 0);
         for (std::size_t c = 0; c < corners; ++c) {
             std::uint32_t lo, hi;
             ends(c, lo, hi);
-            ++start[lo + 1];
+            ++s.start[lo + 1];
         }
-        for (std::size_t v = 0; v < n; ++v) start[v + 1] += start[v];
-        std::vector<std::uint64_t> bucket(corners); // (higher vertex << 32) | corner
-        std::vector<std::size_t> cursor(start.begin(), start.end() - 1);
+        for (std::size_t v = 0; v < n; ++v) s.start[v + 1] += s.start[v];
+        s.bucket.resize(corners); // (higher vertex << 32) | corner
+        s.cursor.assign(s.start.begin(), s.start.end() - 1);
         for (std::size_t c = 0; c < corners; ++c) {
             std::uint32_t lo, hi;
             ends(c, lo, hi);
-            bucket[cursor[lo]++] = (std::uint64_t(hi) << 32) | c;
+            s.bucket[s.cursor[lo]++] = (std::uint64_t(hi) << 32) | c;
         }
-        std::vector<std::size_t> firstEdge(n + 1, 0); // edges of lower vertex v: firstEdge[v]..
+        s.firstEdge.assign(n + 1, 0); // edges of lower vertex v: firstEdge[v]..
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t v = r.begin(); v < r.end(); ++v) {
-                std::sort(bucket.begin() + start[v], bucket.begin() + start[v + 1]);
-                std::size_t unique = 0;
-                for (std::size_t i = start[v]; i < start[v + 1]; ++i)
-                    unique += i == start[v] || (bucket[i] >> 32) != (bucket[i - 1] >> 32);
-                firstEdge[v + 1] = unique;
+                std::sort(s.bucket.begin() + s.start[v], s.bucket.begin() + s.start[v + 1]);
+                std::uint32_t unique = 0;
+                for (std::size_t i = s.start[v]; i < s.start[v + 1]; ++i)
+                    unique += i == s.start[v] || (s.bucket[i] >> 32) != (s.bucket[i - 1] >> 32);
+                s.firstEdge[v + 1] = unique;
             }
         });
-        for (std::size_t v = 0; v < n; ++v) firstEdge[v + 1] += firstEdge[v];
-        pairs.resize(2 * firstEdge[n]);
+        for (std::size_t v = 0; v < n; ++v) s.firstEdge[v + 1] += s.firstEdge[v];
+    }
+    py::array_t<std::uint32_t> edges({py::ssize_t(n ? s.firstEdge[n] : 0), py::ssize_t(2)});
+    std::uint32_t* pairs = edges.mutable_data(); // lower, higher per edge
+    {
+        py::gil_scoped_release release;
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n), [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t v = r.begin(); v < r.end(); ++v) {
-                std::size_t e = firstEdge[v];
-                for (std::size_t i = start[v]; i < start[v + 1]; ++i) {
-                    if (i > start[v] && (bucket[i] >> 32) != (bucket[i - 1] >> 32)) ++e;
+                std::size_t e = s.firstEdge[v];
+                for (std::size_t i = s.start[v]; i < s.start[v + 1]; ++i) {
+                    if (i > s.start[v] && (s.bucket[i] >> 32) != (s.bucket[i - 1] >> 32)) ++e;
                     pairs[2 * e] = std::uint32_t(v);
-                    pairs[2 * e + 1] = std::uint32_t(bucket[i] >> 32);
-                    out[bucket[i] & 0xffffffffu] = std::uint32_t(e);
+                    pairs[2 * e + 1] = std::uint32_t(s.bucket[i] >> 32);
+                    out[s.bucket[i] & 0xffffffffu] = std::uint32_t(e);
                 }
             }
         });
     }
-    py::array_t<std::uint32_t> edges({py::ssize_t(pairs.size() / 2), py::ssize_t(2)});
-    std::copy(pairs.begin(), pairs.end(), edges.mutable_data());
     return py::make_tuple(edges, cornerEdges);
 }
 

@@ -289,8 +289,26 @@ def test_edges_equal_a_brute_force_count(isouq, data_dir, source, kwargs):
     assert [tuple(e) for e in edges.tolist()] == sorted(set(sides))
     assert len(corner_edges) == len(sides)
     assert [tuple(e) for e in edges[corner_edges].tolist()] == sides
+    isouq.mesh("field:tangle", resolution=40, summary=False).edges()  # the scratch of a bigger mesh
     again = m.edges()
     assert bits(again[0]) == bits(edges) and bits(again[1]) == bits(corner_edges)
+
+
+def test_high_order_off_is_the_full_pass_linear_part(isouq, data_dir):
+    """high_order=False (the estimate pass; Blender's live mode while only linear columns are
+    shown): the full pass's triangles, positions, provenance, err_est and err_bound bit for bit,
+    no high-order column; the linear-only pass has the same positions; refused for weno."""
+    path = str(data_dir / "fuel_64x64x64_uint8.raw")
+    full = isouq.mesh(path, isovalue=80.0, method="linear", summary=False)
+    fast = isouq.mesh(path, isovalue=80.0, method="linear", summary=False, high_order=False)
+    assert bits(fast.vertices) == bits(full.vertices) and bits(fast.triangles) == bits(full.triangles)
+    assert set(fast.columns) == {"edge_i", "edge_j", "edge_k", "edge_axis", "t_linear", "err_est", "err_bound"}
+    for name, column in fast.columns.items():
+        assert bits(column) == bits(full.columns[name]), name
+    linear = isouq.mesh(path, isovalue=80.0, linear_only=True, summary=False)
+    assert bits(linear.vertices) == bits(full.vertices) and bits(linear.triangles) == bits(full.triangles)
+    with pytest.raises(ValueError, match="high_order"):
+        isouq.mesh(path, isovalue=80.0, high_order=False)
 
 
 def test_example_notebook(isouq, tmp_path):
