@@ -15,8 +15,9 @@
 #include <sys/mman.h>
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -228,12 +229,22 @@ void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, 
         // Stencil f_{i-2..i+3} along the edge; a voxel outside the data, inactive under the
         // ActiveOnly policy, or not finite (an inactive NaN the input checks do not see) is
         // missing and the methods fall back (SPEC §1, §2).
+        // The stencil's voxels differ only along the axis: the other two coordinates are tested
+        // once, the axis coordinate per voxel.
+        bool across = true;
+        int lo = std::numeric_limits<int>::min(), hi = std::numeric_limits<int>::max();
+        if (ctx.bounds) {
+            for (int a = 0; a < 3; ++a)
+                if (a != axis && (ijk[a] < ctx.bounds->min()[a] || ijk[a] > ctx.bounds->max()[a])) across = false;
+            lo = ctx.bounds->min()[axis];
+            hi = ctx.bounds->max()[axis];
+        }
         std::array<float, 6> f{};
         std::uint8_t available = 0;
         for (int j = 0; j < 6; ++j) {
             const int o = j - 2;
             f[j] = s.value(x + o * dx, y + o * dy, z + o * dz);
-            const bool inData = !ctx.bounds || ctx.bounds->isInside(ijk.offsetBy(o * dx, o * dy, o * dz));
+            const bool inData = across && ijk[axis] + o >= lo && ijk[axis] + o <= hi;
             const bool usable = std::isfinite(f[j]) &&
                 (ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz));
             if ((inData && usable) || j == 2 || j == 3) available |= std::uint8_t(1u << j);
