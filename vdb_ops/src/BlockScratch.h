@@ -151,6 +151,9 @@ public:
 
     int index(int x, int y, int z) const { return ((x - mLo) * mWidth + (y - mLo)) * mWidth + (z - mLo); }
     float value(int x, int y, int z) const { return mValues[index(x, y, z)]; }
+    /// The value of (x, y, z) in memory; stride(axis) floats apart along an axis.
+    const float* at(int x, int y, int z) const { return &mValues[std::size_t(index(x, y, z))]; }
+    int stride(int axis) const { return axis == 0 ? mWidth * mWidth : axis == 1 ? mWidth : 1; }
     bool isActive(int x, int y, int z) const { return (activeRow(x, y) >> (z - mLo)) & 1u; }
 
     /// Which side of the isovalue the 8^3 region at @a origin lies on: a cheap summary that lets
