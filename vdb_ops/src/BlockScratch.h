@@ -5,7 +5,6 @@
 #pragma once
 
 #include <openvdb/openvdb.h>
-#include <openvdb/tools/Morphology.h>
 
 #ifdef __SSE2__
 #include <emmintrin.h>
@@ -58,6 +57,16 @@ inline std::uint32_t insideBits(const float* v, int n, float k)
 #endif
 }
 
+/// insideBits of n <= 8 values of a leaf row: four at a time only for a whole row (a part may
+/// end at the leaf buffer's end).
+inline std::uint32_t leafRowInside(const float* v, int n, float k)
+{
+    if (n == kBlockDim) return insideBits(v, n, k);
+    std::uint32_t bits = 0;
+    for (int z = 0; z < n; ++z) bits |= std::uint32_t(v[z] >= k) << z;
+    return bits;
+}
+
 /// One voxel per block (coordinates >> 3), value = block index. Small internal nodes (8^3
 /// children rather than OpenVDB's 32^3 and 16^3) keep a small grid's index to a few pages,
 /// which matters when meshing interactively (page faults are expensive here).
@@ -80,20 +89,27 @@ template <typename TreeT>
 void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReach reach = BlockReach::Around)
 {
     BlockIndexTree& coarse = blocks.index;
-    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
-        if (leaf->isEmpty()) continue;
-        const Coord b = leaf->origin() >> 3;
-        if (reach == BlockReach::Around) coarse.setValueOn(b, 0);
-        else coarse.fill(CoordBBox(b.offsetBy(-1), b), 0, true);
+    // The 27 blocks around (or the 8 up to) each leaf, set one by one: on a small grid this is
+    // several times cheaper than a tools::dilateActiveValues of the leaves' blocks, which it
+    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency").
+    {
+        openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
+        const int to = reach == BlockReach::Around ? 1 : 0;
+        for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+            if (leaf->isEmpty()) continue;
+            const Coord b = leaf->origin() >> 3;
+            for (int dx = -1; dx <= to; ++dx)
+                for (int dy = -1; dy <= to; ++dy)
+                    for (int dz = -1; dz <= to; ++dz) acc.setValueOn(b.offsetBy(dx, dy, dz), 0);
+        }
     }
-    if (reach == BlockReach::Around)
-        openvdb::tools::dilateActiveValues(coarse, 1, openvdb::tools::NN_FACE_EDGE_VERTEX,
-            openvdb::tools::IGNORE_TILES, threaded);
+    bool tiles = false;
     // Active tiles: only the blocks within one voxel of a tile's border can hold a crossing
     // between the tile and its surroundings; the tile's interior is constant and is skipped.
     typename TreeT::ValueOnCIter tile = tree.cbeginValueOn();
     tile.setMaxDepth(TreeT::ValueOnCIter::LEAF_DEPTH - 1);
     for (; tile; ++tile) {
+        tiles = true;
         CoordBBox box;
         tile.getBoundingBox(box);
         const Coord lo = box.min() >> 3, hi = box.max() >> 3;
@@ -101,7 +117,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
         if (hi[0] - lo[0] >= 2 && hi[1] - lo[1] >= 2 && hi[2] - lo[2] >= 2)
             coarse.fill(CoordBBox(lo.offsetBy(1), hi.offsetBy(-1)), -1, false);
     }
-    coarse.voxelizeActiveTiles(threaded);
+    if (tiles) coarse.voxelizeActiveTiles(threaded); // without tile fills there are no tiles
     std::int32_t next = 0;
     for (auto leaf = coarse.beginLeaf(); leaf; ++leaf) {
         for (auto v = leaf->beginValueOn(); v; ++v) {
@@ -135,6 +151,9 @@ public:
 
     int index(int x, int y, int z) const { return ((x - mLo) * mWidth + (y - mLo)) * mWidth + (z - mLo); }
     float value(int x, int y, int z) const { return mValues[index(x, y, z)]; }
+    /// The value of (x, y, z) in memory; stride(axis) floats apart along an axis.
+    const float* at(int x, int y, int z) const { return &mValues[std::size_t(index(x, y, z))]; }
+    int stride(int axis) const { return axis == 0 ? mWidth * mWidth : axis == 1 ? mWidth : 1; }
     bool isActive(int x, int y, int z) const { return (activeRow(x, y) >> (z - mLo)) & 1u; }
 
     /// Which side of the isovalue the 8^3 region at @a origin lies on: a cheap summary that lets
@@ -177,15 +196,27 @@ public:
         return classify(origin, cellBox);
     }
 
+    /// As gatherAndClassify without the values (the count pass reads none): the inside and
+    /// active bits come straight from the leaves. Needs the window [-1, 9)^3 (halo 1).
+    bool gatherBitsAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
+    {
+        clearRows();
+        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
+            for (int by = firstBlock(); by <= lastBlock(); ++by)
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
+                    gatherNeighbour<false>(origin, bx, by, bz, isovalue);
+        return classify(origin, cellBox);
+    }
+
     /// Copies values and active states of [lo, lo + width)^3 around @a origin, and the inside
     /// bits of the voxels [-1, 9)^3 (those of the cells [-1, 8)^3).
     void gather(const Coord& origin, float isovalue)
     {
-        std::fill(mInsideRows.begin(), mInsideRows.end(), 0u);
-        std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
+        clearRows();
         for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
             for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) gatherNeighbour(origin, bx, by, bz);
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
+                    gatherNeighbour<true>(origin, bx, by, bz, isovalue);
         // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
         for (int x = std::max(mLo, -1); x < std::min(mLo + mWidth, kBlockDim + 1); ++x)
             for (int y = std::max(mLo, -1); y < std::min(mLo + mWidth, kBlockDim + 1); ++y) {
@@ -223,7 +254,16 @@ private:
     int firstBlock() const { return (mLo - (kBlockDim - 1)) / kBlockDim; } // floor(lo / 8)
     int lastBlock() const { return (mLo + mWidth - 1) / kBlockDim; }
 
-    void gatherNeighbour(const Coord& origin, int bx, int by, int bz)
+    void clearRows()
+    {
+        std::fill(mInsideRows.begin(), mInsideRows.end(), 0u);
+        std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
+    }
+
+    /// The active bits (and with kValues the values, else the inside bits) of the part of the
+    /// window in neighbour block (bx, by, bz).
+    template <bool kValues>
+    void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
     {
         // Locals, not members, in the loops: stores to the uint32 rows could alias the ints.
         const int lo = mLo, width = mWidth, hi = lo + width;
@@ -235,6 +275,7 @@ private:
         const std::uint32_t zRun = (1u << zCount) - 1u;
         float* values = mValues.data();
         std::uint32_t* activeRows = mActiveRows.data();
+        std::uint32_t* insideRows = mInsideRows.data();
         const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
         if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
             const float* buffer = leaf->buffer().data();
@@ -243,7 +284,8 @@ private:
                 for (int y = y0; y < y1; ++y) {
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
                     const int row = (x - lo) * width + (y - lo);
-                    copyRow(values + row * width + zShift, buffer + src, zCount);
+                    if constexpr (kValues) copyRow(values + row * width + zShift, buffer + src, zCount);
+                    else insideRows[row] |= leafRowInside(buffer + src, zCount, isovalue) << zShift;
                     // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
                     const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
                     activeRows[row] |= (std::uint32_t(word >> (src & 63)) & zRun) << zShift;
@@ -252,10 +294,12 @@ private:
             float tileValue;
             const bool tileActive = mAccessor.probeValue(nOrigin, tileValue);
             const std::uint32_t active = tileActive ? zRun << zShift : 0u;
+            const std::uint32_t inside = tileValue >= isovalue ? zRun << zShift : 0u;
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int row = (x - lo) * width + (y - lo);
-                    std::fill_n(values + row * width + zShift, zCount, tileValue);
+                    if constexpr (kValues) std::fill_n(values + row * width + zShift, zCount, tileValue);
+                    else insideRows[row] |= inside;
                     activeRows[row] |= active;
                 }
         }
@@ -296,8 +340,10 @@ private:
         return any;
     }
 
-    openvdb::tree::ValueAccessor<const TreeT> mAccessor;
-    openvdb::tree::ValueAccessor<const BlockIndexTree> mBlockIndex;
+    // Not registered with the trees (a registration per scratch and call is a locked hash-map
+    // insert): the trees are not changed while a scratch reads them.
+    openvdb::tree::ValueAccessor<const TreeT, false> mAccessor;
+    openvdb::tree::ValueAccessor<const BlockIndexTree, false> mBlockIndex;
     int mLo, mWidth;
     std::vector<float> mValues;
     std::vector<std::uint32_t> mInsideRows; // per (x, y): bit z - lo set when value >= isovalue

@@ -90,11 +90,12 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     clock.lap(mStageTimes.blocks);
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
-    // Classifying cells reads one voxel beyond the block; high-order stencils three (SPEC §2).
+    // Classifying cells reads one voxel beyond the block; the stencils f_{i-2..i+3} of the
+    // edges from voxels 0..7 read voxels -2..10 (SPEC §2).
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(
         std::cref(grid.tree()), std::cref(blocks.index), 1);
-    tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(
-        std::cref(grid.tree()), std::cref(blocks.index), settings.uncertainty ? 3 : 1);
+    tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(std::cref(grid.tree()),
+        std::cref(blocks.index), settings.uncertainty ? -2 : -1, settings.uncertainty ? 13 : 10);
     std::atomic<std::size_t> done{0};
     const std::size_t work = 3 * blockCount;
 
@@ -113,7 +114,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
         if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
-        if (!s.gatherAndClassify(blocks.origins[b], isovalue, cellBox)) return;
+        if (!s.gatherBitsAndClassify(blocks.origins[b], isovalue, cellBox)) return;
         EdgeMask mask;
         countBlock(s, mask, counts[b]);
         if (!counts[b].empty()) found.local().emplace_back(std::int32_t(b), mask);

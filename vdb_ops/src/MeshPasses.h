@@ -91,10 +91,8 @@ void countBlock(const BlockScratch<TreeT>& s, EdgeMask& mask, BlockCounts& count
     counts = BlockCounts{};
     forEachCandidateCell(s, -1, [&](int x, int y, int z, int cubeCase) {
         if (x >= 0 && y >= 0 && z >= 0) counts.triangles += kMcCases.triangleCount[cubeCase];
-        const std::uint16_t crossing = kMcCases.crossingEdges[cubeCase];
-        for (int e = 0; e < 12; ++e) {
-            if (!((crossing >> e) & 1)) continue;
-            const McEdge& edge = kMcEdges[e];
+        for (unsigned crossing = kMcCases.crossingEdges[cubeCase]; crossing; crossing &= crossing - 1) {
+            const McEdge& edge = kMcEdges[__builtin_ctz(crossing)];
             const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
             if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
                 continue; // owned by another block

@@ -15,8 +15,9 @@
 #include <sys/mman.h>
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -111,7 +112,7 @@ private:
         AttributeTable& a = mesh.vertexAttributes;
         auto add = [&](auto zero, std::string_view name) {
             names.emplace_back(name);
-            auto& column = a.add<decltype(zero)>(name, 0); // keeps a reused column's storage
+            auto& column = a.reuse<decltype(zero)>(name); // every value is written by the fill
             resizeForFill(column, n, threaded);
             return column.data();
         };
@@ -163,7 +164,6 @@ void writeHighOrder(const ScratchT& s, int x, int y, int z, int axis, std::size_
     const std::array<float, 6>& f, std::uint8_t available, float tLinear, const VertexContext& ctx,
     const VertexColumns& out, float& t)
 {
-    const int dx = axis == 0, dy = axis == 1, dz = axis == 2;
     const float k = ctx.isovalue, h = float(ctx.spacing[axis]);
     const EdgeCrossing cubic = CubicEdge::crossing(f, available, k);
     const EdgeCrossing weno = WenoEdge::crossing(f, available, k);
@@ -191,11 +191,11 @@ void writeHighOrder(const ScratchT& s, int x, int y, int z, int axis, std::size_
     // differences at both ends, interpolated at t).
     out.errBest[n] = spread.dLc;
     openvdb::Vec3d gradient(0.0);
+    const int sx = s.stride(0), sy = s.stride(1), step = s.stride(axis);
     for (int end = 0; end < 2; ++end) {
-        const int ex = x + end * dx, ey = y + end * dy, ez = z + end * dz;
-        const openvdb::Vec3d g((s.value(ex + 1, ey, ez) - s.value(ex - 1, ey, ez)) / ctx.spacing[0],
-            (s.value(ex, ey + 1, ez) - s.value(ex, ey - 1, ez)) / ctx.spacing[1],
-            (s.value(ex, ey, ez + 1) - s.value(ex, ey, ez - 1)) / ctx.spacing[2]);
+        const float* v = s.at(x, y, z) + end * step;
+        const openvdb::Vec3d g((v[sx] - v[-sx]) / ctx.spacing[0], (v[sy] - v[-sy]) / ctx.spacing[1],
+            (v[1] - v[-1]) / ctx.spacing[2]);
         gradient += g * (end == 0 ? 1.0 - tLinear : double(tLinear));
     }
     const float cosine = edgeNormalCosine(float(gradient[axis]), float(gradient[0]), float(gradient[1]),
@@ -212,7 +212,9 @@ void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, 
     std::size_t n, const VertexContext& ctx, const VertexColumns& out)
 {
     const int dx = axis == 0, dy = axis == 1, dz = axis == 2;
-    const float f0 = s.value(x, y, z), f1 = s.value(x + dx, y + dy, z + dz);
+    const float* v = s.at(x, y, z);
+    const int step = s.stride(axis);
+    const float f0 = v[0], f1 = v[step];
     // SPEC §2 linear crossing, always measured from the lower end of the edge.
     const float tLinear = std::clamp((ctx.isovalue - f0) / (f1 - f0), 0.0f, 1.0f);
     const openvdb::Coord ijk = origin.offsetBy(x, y, z);
@@ -228,12 +230,22 @@ void writeVertex(const ScratchT& s, const openvdb::Coord& origin, int x, int y, 
         // Stencil f_{i-2..i+3} along the edge; a voxel outside the data, inactive under the
         // ActiveOnly policy, or not finite (an inactive NaN the input checks do not see) is
         // missing and the methods fall back (SPEC §1, §2).
+        // The stencil's voxels differ only along the axis: the other two coordinates are tested
+        // once, the axis coordinate per voxel.
+        bool across = true;
+        int lo = std::numeric_limits<int>::min(), hi = std::numeric_limits<int>::max();
+        if (ctx.bounds) {
+            for (int a = 0; a < 3; ++a)
+                if (a != axis && (ijk[a] < ctx.bounds->min()[a] || ijk[a] > ctx.bounds->max()[a])) across = false;
+            lo = ctx.bounds->min()[axis];
+            hi = ctx.bounds->max()[axis];
+        }
         std::array<float, 6> f{};
         std::uint8_t available = 0;
         for (int j = 0; j < 6; ++j) {
             const int o = j - 2;
-            f[j] = s.value(x + o * dx, y + o * dy, z + o * dz);
-            const bool inData = !ctx.bounds || ctx.bounds->isInside(ijk.offsetBy(o * dx, o * dy, o * dz));
+            f[j] = v[o * step];
+            const bool inData = across && ijk[axis] + o >= lo && ijk[axis] + o <= hi;
             const bool usable = std::isfinite(f[j]) &&
                 (ctx.stencil == StencilPolicy::TreeValues || s.isActive(x + o * dx, y + o * dy, z + o * dz));
             if ((inData && usable) || j == 2 || j == 3) available |= std::uint8_t(1u << j);

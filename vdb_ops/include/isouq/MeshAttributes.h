@@ -42,6 +42,17 @@ public:
         return std::get<std::vector<T>>(mColumns.back().data);
     }
 
+    /// The column called @a name of type T with its content if it exists, else a new empty one:
+    /// for a caller that resizes it and overwrites every value (the mesher meshing again into
+    /// the same Mesh), so a reused column is not filled first.
+    template <typename T>
+    std::vector<T>& reuse(std::string_view name)
+    {
+        if (Attribute* existing = findColumn(name))
+            if (auto* same = std::get_if<std::vector<T>>(&existing->data)) return *same;
+        return add<T>(name, 0);
+    }
+
     /// The column called @a name if it exists with element type T, else nullptr.
     template <typename T>
     const std::vector<T>* find(std::string_view name) const
