@@ -2,6 +2,8 @@
 // hidden_features, truth (SPEC §3-§5, §8). The only translation unit of the node layer that
 // reads grids.
 #include "NodeFamilies.h"
+#include "Pieces.h"
+
 #include <isouq/Columns.h>
 
 #include <isouq/Diagnostics.h>
@@ -59,14 +61,21 @@ void cookReadVolume(CookContext& ctx)
     request.keep = keepFromString(p.getString("keep"));
     request.allowEmpty = p.getBool("allow_empty");
 
-    auto volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
-    if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
-        ctx.warn(volume->description + ": the grid is empty; an empty mesh");
-        ctx.outputs["volume"].volume = std::move(volume);
-        return;
+    std::shared_ptr<LoadedVolume> volume;
+    if (ctx.ranks) { // this rank's piece of the block order (docs/mpi.md), checked as a whole
+        VolumeOnRanks piece = readVolumeOnRanks(*ctx.ranks, request, ctx.interrupter);
+        volume = std::move(piece.volume);
+        ctx.outputs["volume"].plan = std::move(piece.plan);
+    } else {
+        volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
+        if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
+            ctx.warn(volume->description + ": the grid is empty; an empty mesh");
+            ctx.outputs["volume"].volume = std::move(volume);
+            return;
+        }
+        const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
+        if (!problem.empty()) throw InputError(problem);
     }
-    const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
-    if (!problem.empty()) throw InputError(problem);
     if (volume->isovalueSource != "given") {
         std::ostringstream line;
         line << "isovalue " << volume->isovalue << " (" << volume->isovalueSource
@@ -91,7 +100,12 @@ void cookMesh(CookContext& ctx)
     settings.provenance = true;
     settings.method = *edgeMethodFromString(p.getString("method"));
     auto out = std::make_shared<MeshData>();
-    out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
+    if (ctx.ranks) { // this rank's piece (docs/mpi.md)
+        const NodeValue* in = ctx.input("volume");
+        if (!in->plan) throw std::invalid_argument("input 'volume' was not read by pieces");
+        out->piece = meshOnRanks(*ctx.ranks, *volume.grid, in->plan, settings, out->mesh, ctx.interrupter);
+    } else
+        out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
     out->isovalue = settings.isovalue;
     out->method = linearOnly ? "linear" : p.getString("method");
     out->uncertainty = !linearOnly;
@@ -249,7 +263,7 @@ void addVolumeNodes(std::vector<NodeType>& types)
                 "error: frames of a simulation cache (docs/sequences.md)"),
         },
         {}, {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}},
-        cookReadVolume});
+        cookReadVolume, /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"mesh", "Mesh",
         "Marching cubes on the sparse grid with linear, cubic and WENO crossings and the per-vertex estimates "
@@ -263,7 +277,8 @@ void addVolumeNodes(std::vector<NodeType>& types)
                 "--linear-only"),
         },
         {{"volume", "volume", "The volume to mesh"}},
-        {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh});
+        {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh,
+        /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"error_estimate", "Error Estimate",
         "Recomputes the paper's estimate e (err_est) and the standard bound e_b (err_bound) of every vertex's "
