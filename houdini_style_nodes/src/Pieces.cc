@@ -144,16 +144,26 @@ std::string lowerExtension(const std::string& path)
 
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
 {
-    if (lowerExtension(request.input) != ".vdb")
-        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (only .vdb files are read "
-            "by pieces; docs/mpi.md); run it in one process");
+    const std::string ext = lowerExtension(request.input);
+    if (ext != ".vdb" && ext != ".raw")
+        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files are "
+            "read by pieces; docs/mpi.md); run it in one process");
     if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
-    request.delayLoad = true;
     VolumeOnRanks out;
-    out.volume = std::make_shared<LoadedVolume>(loadVolume(request, interrupter));
+    auto piece = std::make_shared<VolumePiece>();
+    if (ext == ".raw") {
+        RawPiece raw = loadRawPiece(request, ranks, interrupter);
+        out.volume = std::make_shared<LoadedVolume>(std::move(raw.volume));
+        piece->plan = std::move(raw.plan);
+        piece->voxelsRead = raw.voxelsRead;
+    } else {
+        request.delayLoad = true;
+        out.volume = std::make_shared<LoadedVolume>(loadVolume(request, interrupter));
+        piece->plan = std::make_shared<BrickPlan>(*out.volume->grid, ranks.size());
+    }
+    out.piece = piece;
     const openvdb::FloatGrid& grid = *out.volume->grid;
-    auto plan = std::make_shared<BrickPlan>(grid, ranks.size());
-    out.plan = plan;
+    const BrickPlan* plan = piece->plan.get();
     const int rank = ranks.rank();
     const auto mine = [&](const openvdb::Coord& leafOrigin) { return plan->pieceOfBlock(plan->blockOf(leafOrigin)) == rank; };
 
@@ -177,10 +187,10 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
 }
 
 std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::FloatGrid& grid,
-    std::shared_ptr<const BrickPlan> plan, const MeshSettings& settings, Mesh& mesh,
-    openvdb::util::NullInterrupter* interrupter)
+    const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
 {
     const int rank = ranks.rank(), size = ranks.size();
+    const std::shared_ptr<const BrickPlan>& plan = read.plan;
     BrickMesher mesher(grid, settings, *plan, rank);
     ranks.step([&] { mesher.count(interrupter); });
     const std::vector<Words> counts = ranks.allgather({mesher.vertexCount(), mesher.triangleCount()});
@@ -217,7 +227,7 @@ std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::
                     answered[std::size_t(r)].data() + i * BrickMesher::kBlockWords);
         mesher.fill(mesh, interrupter);
     });
-    piece->voxelsRead = loadedLeafVoxels(grid);
+    piece->voxelsRead = read.voxelsRead ? *read.voxelsRead : loadedLeafVoxels(grid);
     return piece;
 }
 

@@ -11,20 +11,20 @@ namespace isouq::nodes::nodes_internal {
 
 struct VolumeOnRanks {
     std::shared_ptr<LoadedVolume> volume;
-    std::shared_ptr<const BrickPlan> plan;
+    std::shared_ptr<const VolumePiece> piece;
 };
 
-/// loadVolume of a .vdb with delayed loading (topology in memory, leaf values in the file until
-/// touched), the block order cut into one piece per rank, and checkScalarVolume over the values
-/// of every rank's own leaves joined (with the Otsu histograms of a fog volume without an
-/// isovalue). @throw InputError as loadVolume and checkScalarVolume, on every rank.
+/// loadVolume by pieces, the block order cut into one piece per rank: a .vdb with delayed
+/// loading (topology in memory, leaf values in the file until touched), a .raw by z-layers
+/// (loadRawPiece); then checkScalarVolume over the values of every rank's own leaves joined
+/// (with the Otsu histograms of a fog volume without an isovalue).
+/// @throw InputError as loadVolume and checkScalarVolume, on every rank.
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter);
 
 /// This rank's piece of extractIsosurface(grid, settings) into @a mesh (BrickMesher): count
 /// pass, prefix sums of the counts, the masks of + neighbours that later ranks own, fill pass.
 std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::FloatGrid& grid,
-    std::shared_ptr<const BrickPlan> plan, const MeshSettings& settings, Mesh& mesh,
-    openvdb::util::NullInterrupter* interrupter);
+    const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter);
 
 /// summarizeMesh of the whole mesh, on rank 0 (an empty object elsewhere): sums carried from
 /// rank to rank in the one-process order (bit-equal), edges and components joined over the

@@ -65,7 +65,7 @@ void cookReadVolume(CookContext& ctx)
     if (ctx.ranks) { // this rank's piece of the block order (docs/mpi.md), checked as a whole
         VolumeOnRanks piece = readVolumeOnRanks(*ctx.ranks, request, ctx.interrupter);
         volume = std::move(piece.volume);
-        ctx.outputs["volume"].plan = std::move(piece.plan);
+        ctx.outputs["volume"].piece = std::move(piece.piece);
     } else {
         volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
         if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
@@ -102,8 +102,8 @@ void cookMesh(CookContext& ctx)
     auto out = std::make_shared<MeshData>();
     if (ctx.ranks) { // this rank's piece (docs/mpi.md)
         const NodeValue* in = ctx.input("volume");
-        if (!in->plan) throw std::invalid_argument("input 'volume' was not read by pieces");
-        out->piece = meshOnRanks(*ctx.ranks, *volume.grid, in->plan, settings, out->mesh, ctx.interrupter);
+        if (!in->piece) throw std::invalid_argument("input 'volume' was not read by pieces");
+        out->piece = meshOnRanks(*ctx.ranks, *volume.grid, *in->piece, settings, out->mesh, ctx.interrupter);
     } else
         out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
     out->isovalue = settings.isovalue;

@@ -4,7 +4,8 @@
   check_mpi.py --cli ISOUQ --mpirun MPIRUN --np N --case CASE --data DIR --work DIR
 
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
-tiles (a level set with active tiles, made with pyopenvdb), bad_input, interrupt.
+raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
+bad_input, interrupt.
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -91,6 +92,19 @@ def plan_bound(path, grid, np_):
     return out, 512 * len(leaves)
 
 
+def raw_bound(path, np_):
+    """Per rank, the samples it may read of a raw scan: its z-layers of 8 slices, layers
+    [L p / P, L (p + 1) / P), and the 3 slices on either side that the stencils reach (SPEC §2),
+    inside the scan; and the whole scan's samples."""
+    x, y, z = (int(v) for v in os.path.basename(path).split("_")[-2].split("x"))
+    layers = (z + 7) // 8
+    out = []
+    for p in range(np_):
+        z0, z1 = min(8 * (layers * p // np_), z), min(8 * (layers * (p + 1) // np_), z)
+        out.append(0 if z0 >= z1 else x * y * (min(z1 + 3, z) - max(z0 - 3, 0)))
+    return out, x * y * z
+
+
 def compare(args, name, inputs, extra, grid=None):
     work = os.path.join(args.work, f"{name}_np{args.np}")
     os.makedirs(work, exist_ok=True)
@@ -137,6 +151,15 @@ def compare(args, name, inputs, extra, grid=None):
                          f"plus halo: {p['bound']} of {total}")
         print(f"voxels read per rank: {reads}, bounds {[p['bound'] for p in plan]}, shares "
               f"{[p['share'] for p in plan]} of {total}")
+    if inputs.endswith(".raw"):
+        bounds, total = raw_bound(inputs, args.np)
+        reads = [r["voxels_read"] for r in ranks]
+        for r, b in zip(ranks, bounds):
+            if r["voxels_read"] > b:
+                sys.exit(f"rank {r['rank']} read {r['voxels_read']} samples, more than its slices and halo: {b} of {total}")
+        if args.np > 1 and sum(reads) >= args.np * total:
+            sys.exit(f"every rank read the whole scan: {reads} of {total}")
+        print(f"samples read per rank: {reads}, bounds {bounds} of {total}")
     print(f"np {args.np}: {name}: byte-identical PLY ({len(a)} bytes), equal summary")
 
 
@@ -160,7 +183,8 @@ def bad_input(args):
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
         [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
-        [os.path.join(args.data, "fuel_64x64x64_uint8.raw")],          # not yet under MPI
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
     ]
     for extra in cases:
         r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
@@ -169,7 +193,7 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
-        if "--hidden-features" not in extra and not extra[0].endswith(".raw"):  # one process says the same
+        if "--hidden-features" not in extra:  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
@@ -242,6 +266,12 @@ def main():
         compare(args, "fog", smoke, ["--grid", "density"], grid="density")
     elif args.case == "fog_k":
         compare(args, "fog_k", smoke, ["--isovalue", "0.1", "--method", "cubic"], grid="density")
+    elif args.case == "raw":
+        compare(args, "raw", os.path.join(args.data, "fuel_64x64x64_uint8.raw"), [])
+    elif args.case == "raw_float":
+        compare(args, "raw_float", os.path.join(args.data, "skull_64x64x64_float32.raw"), ["--method", "cubic"])
+    elif args.case == "raw_k":
+        compare(args, "raw_k", os.path.join(args.data, "engine_256x256x128_uint8.raw"), ["--isovalue", "71"])
     elif args.case == "bad_input":
         bad_input(args)
     elif args.case == "interrupt":

@@ -44,7 +44,7 @@ struct MeshData {
 /// The value on one port: which member is set follows the port's type.
 struct NodeValue {
     std::shared_ptr<const LoadedVolume> volume; ///< "volume"
-    std::shared_ptr<const BrickPlan> plan;      ///< "volume" on ranks: the pieces of the block order
+    std::shared_ptr<const VolumePiece> piece;   ///< "volume" on ranks: what this rank read (Ranks.h)
     std::shared_ptr<const MeshData> mesh;       ///< "mesh"
     nlohmann::json json;                        ///< "json"
 };

@@ -6,19 +6,18 @@
 // (Distributed.h), so the library and its users never load MPI.
 #pragma once
 
+#include <isouq/Bricks.h>
+
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
-namespace isouq {
-class BrickPlan; // Bricks.h
-}
-
 namespace isouq::nodes {
 
-using Words = std::vector<std::uint64_t>;
+using Words = PieceComm::Words;
 
 /// A file that every rank writes at its own offsets (MPI-IO); the destructor closes it on
 /// every rank (collective).
@@ -29,19 +28,13 @@ public:
     virtual void writeAt(std::uint64_t offset, const char* data, std::size_t bytes, const std::string& what) = 0;
 };
 
-/// The ranks of one run and the collective operations the distributed nodes use. Every
+/// The ranks of one run and the collective operations the distributed nodes use (rank, size,
+/// allgather and exchange are PieceComm's, which the volume sources read by pieces use). Every
 /// collective is called by every rank in the same order.
-class Ranks {
+class Ranks : public PieceComm {
 public:
-    virtual ~Ranks() = default;
-    virtual int rank() const = 0;
-    virtual int size() const = 0;
-    /// Each rank's @a words, in rank order, on every rank.
-    virtual std::vector<Words> allgather(const Words& words) const = 0;
     /// Each rank's @a words on rank 0 (empty elsewhere).
     virtual std::vector<Words> gather(const Words& words) const = 0;
-    /// Sends out[r] to rank r; returns what each rank sent here.
-    virtual std::vector<Words> exchange(const std::vector<Words>& out) const = 0;
     /// @a words of rank @a root on every rank.
     virtual Words broadcast(const Words& words, int root) const = 0;
     /// Point to point: @a words to rank @a to; the next words from rank @a from.
@@ -57,6 +50,7 @@ public:
     /// the lowest failing rank (after @a where). Steps nest: an inner failure is one on every
     /// rank, so the outer agreement sees the same everywhere.
     void step(const std::function<void()>& body, const std::string& where = std::string()) const;
+    void agree(const std::function<void()>& body) const override { step(body); }
 
     /// Sums carried in rank order (bit-equal to one pass over the whole): rank 0 applies @a add
     /// to @a start, every later rank to what the rank before it passed on; the last rank's
@@ -64,11 +58,19 @@ public:
     Words carry(const Words& start, const std::function<Words(const Words&)>& add) const;
 };
 
+/// What a rank read of a volume (the read_volume node's output on ranks).
+struct VolumePiece {
+    std::shared_ptr<const BrickPlan> plan; ///< the block order cut into one piece per rank
+    /// Samples read from the file; unset for a .vdb read with delayed loading, whose leaves are
+    /// read when first touched (counted after meshing, loadedLeafVoxels).
+    std::optional<std::uint64_t> voxelsRead;
+};
+
 /// Where a rank's piece of a mesh sits in the whole mesh (the mesh node's output on ranks).
 struct MeshPiece {
     std::shared_ptr<const BrickPlan> plan;
     std::vector<std::uint64_t> vertexBegin, triangleBegin; ///< per rank, then the totals
-    std::uint64_t voxelsRead = 0; ///< voxels of the leaves this rank loaded
+    std::uint64_t voxelsRead = 0; ///< samples this rank read (VolumePiece)
 };
 
 /// Text as words and back (messages, JSON between ranks).
