@@ -94,17 +94,22 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
     if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", summaryPath.c_str());
 }
 
-/// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings.
-isouq::nodes::GraphResult runWithProgress(const isouq::nodes::Graph& graph, bool quiet)
+/// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings. On
+/// MPI ranks (@a ranks) rank 0 draws and prints.
+isouq::nodes::GraphResult runWithProgress(const isouq::nodes::Graph& graph, bool quiet,
+    const isouq::nodes::Ranks* ranks)
 {
-    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
-    isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress);
-    printNotes(result.warnings, quiet);
+    const bool root = !ranks || ranks->rank() == 0;
+    isouq::cli::ProgressInterrupter progress(root && !quiet && stderrIsTerminal());
+    isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress, {}, ranks);
+    if (root) printNotes(result.warnings, quiet);
     return result;
 }
 
-/// `isouq mesh` and `isouq demo`: the mesh graph (MeshGraph.h), run like any other graph.
-int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool quiet)
+/// `isouq mesh` and `isouq demo`: the mesh graph (MeshGraph.h), run like any other graph, in
+/// one process or on the MPI ranks @a ranks (docs/mpi.md).
+int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool quiet,
+    const isouq::nodes::Ranks* ranks = nullptr)
 {
     const nlohmann::json doc = isouq::nodes::meshGraph(request);
     const isouq::nodes::Graph graph = isouq::nodes::parseGraph(doc);
@@ -123,7 +128,8 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
             if (same(in)) throw isouq::InputError("--save-graph " + saveGraph + " is the input '" + in + "'; refusing to overwrite an input");
         isouq::checkWritable(saveGraph);
     }
-    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet);
+    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet, ranks);
+    if (ranks && ranks->rank() != 0) return 0;
     if (!saveGraph.empty()) isouq::writeTextFileAtomic(saveGraph, doc.dump(2) + "\n");
     printResult(result.outputs.at(isouq::nodes::kMeshGraphSummary).at("summary"), request.summaryPath);
     if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", saveGraph.c_str(), saveGraph.c_str());
@@ -138,35 +144,15 @@ struct MpiSession {
     {
         int provided = 0;
         MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
-        MPI_Comm_rank(MPI_COMM_WORLD, &rank);
-        MPI_Comm_size(MPI_COMM_WORLD, &size);
+        ranks = isouq::nodes::mpiRanks(MPI_COMM_WORLD, [] { return isouq::cli::ProgressInterrupter::interrupted(); });
     }
-    ~MpiSession() { MPI_Finalize(); }
-    int rank = 0, size = 1;
+    ~MpiSession()
+    {
+        ranks.reset();
+        MPI_Finalize();
+    }
+    std::unique_ptr<isouq::nodes::Ranks> ranks;
 };
-
-/// `isouq mesh` on the ranks of MPI_COMM_WORLD (Distributed.h): the same outputs and lines as
-/// one process, printed by rank 0; an error is printed once, by the lowest failing rank.
-int runMeshOnRanks(const MeshGraphRequest& request, const std::string& saveGraph, bool quiet, int rank)
-{
-    if (!saveGraph.empty()) throw isouq::InputError("--save-graph is not supported under MPI yet (docs/mpi.md)");
-    isouq::cli::ProgressInterrupter progress(rank == 0 && !quiet && stderrIsTerminal());
-    const isouq::nodes::DistributedResult r = isouq::nodes::runDistributedMesh(request, MPI_COMM_WORLD, &progress,
-        [] { return isouq::cli::ProgressInterrupter::interrupted(); });
-    if (r.status == 2) {
-        if (r.printsError) std::fprintf(stderr, "isouq: error: %s\n", isouq::oneLine(r.error).c_str());
-        return kExitBadInput;
-    }
-    if (r.status != 0) {
-        if (r.isRoot) std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
-        return isouq::cli::ProgressInterrupter::interrupted() ? isouq::cli::ProgressInterrupter::exitStatus() : 130;
-    }
-    if (r.isRoot) {
-        printNotes(r.notes, quiet);
-        printResult(r.summary, request.summaryPath);
-    }
-    return 0;
-}
 #endif
 
 /// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
@@ -196,13 +182,14 @@ int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
     return 0;
 }
 
-int runGraphFile(const std::string& path, const std::string& outDir, bool quiet)
+int runGraphFile(const std::string& path, const std::string& outDir, bool quiet, const isouq::nodes::Ranks* ranks)
 {
     isouq::nodes::GraphOptions options;
     options.outputDir = outDir;
     const isouq::nodes::Graph graph = isouq::nodes::loadGraph(path, options);
     if (!outDir.empty()) std::filesystem::create_directories(outDir);
-    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet);
+    const isouq::nodes::GraphResult result = runWithProgress(graph, quiet, ranks);
+    if (ranks && ranks->rank() != 0) return 0;
     for (const std::string& file : result.written) std::printf("wrote %s\n", file.c_str());
     return 0;
 }
@@ -228,8 +215,11 @@ int main(int argc, char** argv)
     std::unique_ptr<MpiSession> mpi;
     if (isouq::nodes::launchedByMpiLauncher()) {
         mpi = std::make_unique<MpiSession>(argc, argv);
-        sPrintsErrors = mpi->rank == 0;
+        sPrintsErrors = mpi->ranks->rank() == 0;
     }
+    const isouq::nodes::Ranks* ranks = mpi ? mpi->ranks.get() : nullptr;
+#else
+    const isouq::nodes::Ranks* ranks = nullptr;
 #endif
     using isouq::cli::addParmOptions;
     using isouq::cli::nodeType;
@@ -334,14 +324,9 @@ int main(int argc, char** argv)
             for (const CLI::Option* o : {frames, resume, skipMissing, frameJobs})
                 if (o->count() > 0)
                     throw isouq::InputError(o->get_name() + " is for sequences: INPUT needs #### or %04d in its name");
-#ifdef ISOUQ_HAVE_MPI
-            if (mpi) return runMeshOnRanks(meshRequest, saveGraph, quiet, mpi->rank);
-#endif
-            return runMesh(meshRequest, saveGraph, quiet);
+            return runMesh(meshRequest, saveGraph, quiet, ranks);
         }
-#ifdef ISOUQ_HAVE_MPI
-        if (mpi && mpi->size > 1) throw isouq::InputError("only 'isouq mesh' runs on several MPI ranks");
-#endif
+        if (ranks && ranks->size() > 1 && !*run) throw isouq::InputError("only 'isouq mesh' and 'isouq run' run on several MPI ranks");
         if (*demo) {
             std::filesystem::create_directories(demoDir);
             MeshGraphRequest demoRequest;
@@ -351,11 +336,12 @@ int main(int argc, char** argv)
             return runMesh(demoRequest, "", quiet);
         }
         if (*nodesCmd) return listNodes(asJson, asMarkdown);
-        if (*run) return runGraphFile(graphPath, outDir, quiet);
+        if (*run) return runGraphFile(graphPath, outDir, quiet, ranks);
         return validateStatus;
     } catch (const isouq::InterruptedError&) {
-        std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
-        return isouq::cli::ProgressInterrupter::exitStatus();
+        // On MPI ranks a rank that got no signal stops with the others, as Ctrl-C.
+        if (sPrintsErrors) std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
+        return isouq::cli::ProgressInterrupter::interrupted() ? isouq::cli::ProgressInterrupter::exitStatus() : 130;
     } catch (const std::filesystem::filesystem_error& e) {
         printError(e.what());
         return kExitBadInput;

@@ -3,6 +3,7 @@
 // summary (C7). Mesh in, mesh out: each adds named per-vertex columns and an info block; none
 // reads the volume.
 #include "NodeFamilies.h"
+#include "Pieces.h"
 #include <isouq/ColorMaps.h>
 #include <isouq/Columns.h>
 
@@ -269,7 +270,8 @@ void cookSummary(CookContext& ctx)
 {
     const auto start = std::chrono::steady_clock::now();
     const MeshData& m = inputMesh(ctx);
-    nlohmann::json s = summarizeMesh(m.mesh);
+    if (ctx.ranks && !m.piece) throw std::invalid_argument("input 'mesh' is not a mesh made by pieces");
+    nlohmann::json s = ctx.ranks ? summarizeOnRanks(*ctx.ranks, m.mesh, *m.piece) : summarizeMesh(m.mesh);
     s["isovalue"] = m.isovalue;
     s["method"] = m.method;
     for (const auto& [key, value] : m.info.items()) s[key] = value;
@@ -284,6 +286,7 @@ void cookSummary(CookContext& ctx)
     nlohmann::json timings = ctx.upstreamTimings();
     timings["measure"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     s["timings_ms"] = timings;
+    if (ctx.ranks) addRanksBlock(*ctx.ranks, m, timings, s); // SPEC §10 "MPI"
     ctx.outputs["summary"].json = s;
 }
 
@@ -369,7 +372,7 @@ void addAnalysisNodes(std::vector<NodeType>& types)
         {},
         {{"mesh", "mesh", "The mesh to summarise"},
             {"hidden", "mesh", "Optional: the hidden-feature mesh, for components before and after recovery", true}},
-        {{"summary", "json", "The summary"}}, cookSummary});
+        {{"summary", "json", "The summary"}}, cookSummary, /*meshWriter=*/false, /*onRanks=*/true});
 }
 
 } // namespace isouq::nodes::nodes_internal

@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <regex>
 #include <set>
@@ -318,16 +319,26 @@ std::vector<std::string> destinations(const Graph& graph, std::size_t n, const s
 } // namespace
 
 GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter,
-    const std::vector<std::string>& keepMeshes)
+    const std::vector<std::string>& keepMeshes, const Ranks* ranks)
 {
+    if (ranks)
+        for (const GraphNode& n : graph.nodes)
+            if (!n.type->onRanks) fail(n.id, n.type, "not supported under MPI yet (docs/mpi.md); run it in one process");
+    // On ranks, every stage ends with an agreement (Ranks::step).
+    const auto collective = [ranks](const std::function<void()>& body, const std::string& at = std::string()) {
+        if (ranks) ranks->step(body, at);
+        else body();
+    };
     // Fail on unwritable outputs before any heavy work.
-    for (const GraphNode& n : graph.nodes)
-        for (const ParmSpec& spec : n.type->parms)
-            if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) try {
-                    checkWritable(n.parms.getString(spec.token));
-                } catch (const std::exception& e) {
-                    throw IoError(where(n.id, n.type) + ": parameter '" + spec.token + "': " + e.what());
-                }
+    collective([&] {
+        for (const GraphNode& n : graph.nodes)
+            for (const ParmSpec& spec : n.type->parms)
+                if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) try {
+                        checkWritable(n.parms.getString(spec.token));
+                    } catch (const std::exception& e) {
+                        throw IoError(where(n.id, n.type) + ": parameter '" + spec.token + "': " + e.what());
+                    }
+    });
 
     // A node's outputs are freed once its last reader has cooked (the volume after meshing).
     const std::size_t count = graph.nodes.size();
@@ -352,6 +363,7 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         ctx.interrupter = interrupter;
         ctx.warnings = &result.warnings;
         ctx.writes = &writes;
+        ctx.ranks = ranks;
         ctx.timingsOfUpstream = [&graph, &cookMs, n] { return upstreamTimings(graph, cookMs, n); };
         ctx.destinationsOf = [&graph, n](const std::string& port) { return destinations(graph, n, port); };
         ctx.meshTaker = [&](const std::string& port) {
@@ -366,15 +378,19 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         };
         for (const auto& [port, src] : node.inputs)
             ctx.inputs[port] = &values[src.first].at(src.second);
-        throwIfInterrupted(interrupter);
         const auto start = std::chrono::steady_clock::now();
-        try {
-            node.type->cook(ctx);
-        } catch (const InterruptedError&) {
-            throw;
-        } catch (const std::exception& e) {
-            if (openvdb::util::wasInterrupted(interrupter)) throw InterruptedError();
-            throw InputError(where(node.id, node.type) + ": " + e.what());
+        if (ranks) {
+            ranks->step([&] { node.type->cook(ctx); }, where(node.id, node.type) + ": ");
+        } else {
+            throwIfInterrupted(interrupter);
+            try {
+                node.type->cook(ctx);
+            } catch (const InterruptedError&) {
+                throw;
+            } catch (const std::exception& e) {
+                if (openvdb::util::wasInterrupted(interrupter)) throw InterruptedError();
+                throw InputError(where(node.id, node.type) + ": " + e.what());
+            }
         }
         cookMs[n] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         for (const PortSpec& out : node.type->outputs)
@@ -386,11 +402,13 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
             result.meshes[node.id] = values[n]["mesh"].mesh;
         for (std::size_t m : freeAfter[n]) values[m].clear();
     }
-    throwIfInterrupted(interrupter);
     OutputBatch batch;
-    for (const PendingWrite& w : writes) w.stage(batch);
-    throwIfInterrupted(interrupter);
-    batch.commit();
+    collective([&] { throwIfInterrupted(interrupter); });
+    for (const PendingWrite& w : writes) collective([&] { w.stage(batch); });
+    collective([&] {
+        throwIfInterrupted(interrupter);
+        batch.commit(); // on ranks, rank 0 holds the files
+    });
     for (const PendingWrite& w : writes) result.written.push_back(w.path);
     return result;
 }

@@ -1,6 +1,7 @@
 // isouq nodes: the nodes that write files — write_ply, write_vtp, write_summary, report. Each
 // cook only queues a PendingWrite; the graph commits them after every node has cooked (Node.h).
 #include "NodeFamilies.h"
+#include "Pieces.h"
 
 #include "isouq/nodes/Resources.h"
 
@@ -43,6 +44,16 @@ void cookWritePly(CookContext& ctx)
         throw std::invalid_argument("parameter 'path': " + path + " is a .vtp file; write it with a write_vtp node");
     PlyOptions options = plyOptionsOf(*mesh);
     if (ctx.parms.getString("format") == "ascii") options.encoding = PlyEncoding::Ascii;
+    if (ctx.ranks) { // every rank writes its rows into the one file (docs/mpi.md)
+        if (!mesh->piece) throw std::invalid_argument("input 'mesh' is not a mesh made by pieces");
+        if (options.encoding != PlyEncoding::BinaryLittleEndian)
+            throw std::invalid_argument("parameter 'format': a PLY written by MPI ranks is binary");
+        const Ranks* ranks = ctx.ranks;
+        ctx.writes->push_back({path, [mesh, path, options, ranks](OutputBatch& batch) {
+            stagePlyOnRanks(*ranks, mesh->mesh, *mesh->piece, path, options, batch);
+        }});
+        return;
+    }
     ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addPly(mesh->mesh, path, options); }});
 }
 
@@ -60,7 +71,10 @@ void cookWriteSummary(CookContext& ctx)
 {
     const std::string text = ctx.input("summary")->json.dump(2) + "\n";
     const std::string path = ctx.parms.getString("path");
-    ctx.writes->push_back({path, [text, path](OutputBatch& batch) { batch.addText(path, text); }});
+    const bool writes = !ctx.ranks || ctx.ranks->rank() == 0; // on ranks rank 0 holds the summary
+    ctx.writes->push_back({path, [text, path, writes](OutputBatch& batch) {
+        if (writes) batch.addText(path, text);
+    }});
 }
 
 std::string envOr(const char* name, const std::string& fallback)
@@ -120,7 +134,7 @@ void addOutputNodes(std::vector<NodeType>& types)
             menuParm("format", "Format", {"binary", "ascii"}, "binary",
                 "PLY encoding: binary little-endian, or ascii (what meshio 7 reads face columns from)",
                 "--ply-format")},
-        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWritePly, /*meshWriter=*/true});
+        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWritePly, /*meshWriter=*/true, /*onRanks=*/true});
 
     types.push_back({"write_vtp", "Write VTP",
         "Writes the mesh as VTK XML PolyData for ParaView and VTK (SPEC §10; docs/vtp-format.md): every vertex "
@@ -133,7 +147,7 @@ void addOutputNodes(std::vector<NodeType>& types)
         "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.",
         {parm("path", "Path", ParmType::Path, "summary.json", "Output JSON file (with isouq mesh: the SPEC §8 summary)",
             "--summary")},
-        {{"summary", "json", "The JSON to write"}}, {}, cookWriteSummary});
+        {{"summary", "json", "The JSON to write"}}, {}, cookWriteSummary, /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"report", "Report",
         "Draws the C1 CDF with its threshold, the C5 vertex-by-vertex bars of err_est, d_lc and d_lw in the box, "

@@ -2,6 +2,8 @@
 // hidden_features, truth (SPEC §3-§5, §8). The only translation unit of the node layer that
 // reads grids.
 #include "NodeFamilies.h"
+#include "Pieces.h"
+
 #include <isouq/Columns.h>
 
 #include <isouq/Diagnostics.h>
@@ -59,14 +61,21 @@ void cookReadVolume(CookContext& ctx)
     request.keep = keepFromString(p.getString("keep"));
     request.allowEmpty = p.getBool("allow_empty");
 
-    auto volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
-    if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
-        ctx.warn(volume->description + ": the grid is empty; an empty mesh");
-        ctx.outputs["volume"].volume = std::move(volume);
-        return;
+    std::shared_ptr<LoadedVolume> volume;
+    if (ctx.ranks) { // this rank's piece of the block order (docs/mpi.md), checked as a whole
+        VolumeOnRanks piece = readVolumeOnRanks(*ctx.ranks, request, ctx.interrupter);
+        volume = std::move(piece.volume);
+        ctx.outputs["volume"].piece = std::move(piece.piece);
+    } else {
+        volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
+        if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
+            ctx.warn(volume->description + ": the grid is empty; an empty mesh");
+            ctx.outputs["volume"].volume = std::move(volume);
+            return;
+        }
+        const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
+        if (!problem.empty()) throw InputError(problem);
     }
-    const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
-    if (!problem.empty()) throw InputError(problem);
     if (volume->isovalueSource != "given") {
         std::ostringstream line;
         line << "isovalue " << volume->isovalue << " (" << volume->isovalueSource
@@ -96,7 +105,12 @@ void cookMesh(CookContext& ctx)
         throw std::invalid_argument("parameter 'high_order': off computes no " + p.getString("method") +
             " crossings; use method linear");
     auto out = std::make_shared<MeshData>();
-    out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
+    if (ctx.ranks) { // this rank's piece (docs/mpi.md)
+        const NodeValue* in = ctx.input("volume");
+        if (!in->piece) throw std::invalid_argument("input 'volume' was not read by pieces");
+        out->piece = meshOnRanks(*ctx.ranks, *volume.grid, *in->piece, settings, out->mesh, ctx.interrupter);
+    } else
+        out->mesh = extractIsosurface(*volume.grid, settings, ctx.interrupter);
     out->isovalue = settings.isovalue;
     out->method = linearOnly ? "linear" : p.getString("method");
     out->uncertainty = !linearOnly;
@@ -254,7 +268,7 @@ void addVolumeNodes(std::vector<NodeType>& types)
                 "error: frames of a simulation cache (docs/sequences.md)"),
         },
         {}, {{"volume", "volume", "The grid, its isovalue and, for fields and formulas, the exact field"}},
-        cookReadVolume});
+        cookReadVolume, /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"mesh", "Mesh",
         "Marching cubes on the sparse grid with linear, cubic and WENO crossings and the per-vertex estimates "
@@ -272,7 +286,8 @@ void addVolumeNodes(std::vector<NodeType>& types)
                 "live mode while only those are shown)"),
         },
         {{"volume", "volume", "The volume to mesh"}},
-        {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh});
+        {{"mesh", "mesh", "Triangles, positions of the chosen method and SPEC §6 attributes"}}, cookMesh,
+        /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"error_estimate", "Error Estimate",
         "Recomputes the paper's estimate e (err_est) and the standard bound e_b (err_bound) of every vertex's "

@@ -4,7 +4,8 @@
   check_mpi.py --cli ISOUQ --mpirun MPIRUN --np N --case CASE --data DIR --work DIR
 
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
-tiles (a level set with active tiles, made with pyopenvdb), bad_input, interrupt.
+raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
+bad_input, interrupt.
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -27,10 +28,81 @@ def mpirun(args, np_):
     return [args.mpirun, "--oversubscribe", "--allow-run-as-root", "-q", "-np", str(np_)]
 
 
-def leaf_voxels(path, grid):
+def leaf_origin(ijk):
+    return tuple(c & ~7 for c in ijk)
+
+
+def order_key(block):
+    # The mesher's block order (docs/mpi.md): a tree over block coordinates with 8^3 children
+    # at each of its three levels (Tree4<int32, 3, 3, 3>), each node's children x-major, the
+    # root's children by their origin.
+    b = [c >> 3 for c in block]
+    return (tuple(c >> 9 for c in b), tuple((c >> 6) & 7 for c in b), tuple((c >> 3) & 7 for c in b),
+            tuple(c & 7 for c in b))
+
+
+def plan_bound(path, grid, np_):
+    """Per rank, from the grid alone: the blocks and weight of its piece (SPEC §9, docs/mpi.md:
+    the blocks within one block of a non-empty leaf or of an active tile's border, weight 1 plus
+    the leaf's active voxels, cut at p W / P) and the voxels of the leaves it may read: those of
+    its blocks and of the leaves one leaf around them (the 3-voxel halo of the cubic and WENO
+    stencils, SPEC §2, fits in one leaf)."""
     import pyopenvdb as vdb
     g = vdb.read(path, grid)
-    return g.leafCount() * 512
+    active, leaves, tiles = {}, set(), []
+    for v in g.iterOnValues():
+        if v["depth"] == 3:
+            o = leaf_origin(v["min"])
+            active[o] = active.get(o, 0) + 1
+        else:
+            tiles.append((v["min"], v["max"]))
+    leaves = set(active)
+    if len(leaves) < g.leafCount():  # leaves without active voxels exist and may be read too
+        for v in g.iterOffValues():
+            if v["depth"] == 3:
+                leaves.add(leaf_origin(v["min"]))
+    blocks = set()
+    steps = [(dx, dy, dz) for dx in (-8, 0, 8) for dy in (-8, 0, 8) for dz in (-8, 0, 8)]
+    for o in active:
+        blocks.update((o[0] + dx, o[1] + dy, o[2] + dz) for dx, dy, dz in steps)
+    for lo, hi in tiles:
+        a, b = [c >> 3 for c in lo], [c >> 3 for c in hi]
+        for bx in range(a[0] - 1, b[0] + 2):
+            for by in range(a[1] - 1, b[1] + 2):
+                for bz in range(a[2] - 1, b[2] + 2):
+                    inner = all(a[i] + 1 <= c <= b[i] - 1 for i, c in enumerate((bx, by, bz)))
+                    if not (inner and all(b[i] - a[i] >= 2 for i in range(3))):
+                        blocks.add((8 * bx, 8 * by, 8 * bz))
+    order = sorted(blocks, key=order_key)
+    prefix = [0]
+    for o in order:
+        prefix.append(prefix[-1] + 1 + active.get(o, 0))
+    total = prefix[-1]
+    bounds = [0]
+    for p in range(1, np_):
+        target = total // np_ * p + total % np_ * p // np_
+        bounds.append(next((i for i in range(len(order)) if prefix[i] >= target), len(order)))
+    bounds.append(len(order))
+    out = []
+    for p in range(np_):
+        mine = order[bounds[p]:bounds[p + 1]]
+        near = {(o[0] + dx, o[1] + dy, o[2] + dz) for o in mine for dx, dy, dz in steps} & leaves
+        out.append({"blocks": len(mine), "weight": prefix[bounds[p + 1]] - prefix[bounds[p]],
+                    "bound": 512 * len(near), "share": 512 * len(set(mine) & leaves)})
+    return out, 512 * len(leaves)
+
+
+def raw_bound(path, np_):
+    """Per rank, the samples it may read of a raw scan: its z-layers of 8 slices, layers
+    [L p / P, L (p + 1) / P), and the 3 slices on either side that the stencils reach (SPEC §2),
+    inside the scan; and the whole scan's samples."""
+    x, y, z = (int(v) for v in os.path.basename(path).split("_")[-2].split("x"))
+    layers = (z + 7) // 8
+    out = []
+    for p in range(np_):
+        z0, z1 = min(8 * (layers * p // np_), z), min(8 * (layers * (p + 1) // np_), z)
+        out.append(0 if z0 >= z1 else x * y * (min(z1 + 3, z) - max(z0 - 3, 0)))
+    return out, x * y * z
 
 
 def compare(args, name, inputs, extra, grid=None):
@@ -67,16 +139,27 @@ def compare(args, name, inputs, extra, grid=None):
     if sum(r["triangles"] for r in ranks) != s1["triangles"] or sum(r["vertices"] for r in ranks) != s1["vertices"]:
         sys.exit(f"ranks do not add up: {ranks}")
     if grid is not None:
-        total = leaf_voxels(inputs, grid)
+        # Each rank reads at most its share (the leaves of its blocks) plus the halo its
+        # stencils need (the leaves one leaf around its blocks), both computed here.
+        plan, total = plan_bound(inputs, grid, args.np)
         reads = [r["voxels_read"] for r in ranks]
-        # Each rank reads its share of the leaves plus a halo of one leaf around its blocks.
-        for r in ranks:
-            share = total * r["weight"] / sum(q["weight"] for q in ranks)
-            if args.np > 1 and not r["voxels_read"] < total:
-                sys.exit(f"rank {r['rank']} read every leaf: {reads} of {total}")
-            if r["voxels_read"] > share + 0.6 * total:
-                sys.exit(f"rank {r['rank']} read {r['voxels_read']} voxels, its share is {share:.0f} of {total}")
-        print(f"voxels read per rank: {reads} of {total} ({[round(x / total, 3) for x in reads]})")
+        for r, p in zip(ranks, plan):
+            if (r["blocks"], r["weight"]) != (p["blocks"], p["weight"]):
+                sys.exit(f"rank {r['rank']}: blocks and weight {r['blocks']}, {r['weight']}, expected {p}")
+            if r["voxels_read"] > p["bound"]:
+                sys.exit(f"rank {r['rank']} read {r['voxels_read']} voxels, more than its share {p['share']} "
+                         f"plus halo: {p['bound']} of {total}")
+        print(f"voxels read per rank: {reads}, bounds {[p['bound'] for p in plan]}, shares "
+              f"{[p['share'] for p in plan]} of {total}")
+    if inputs.endswith(".raw"):
+        bounds, total = raw_bound(inputs, args.np)
+        reads = [r["voxels_read"] for r in ranks]
+        for r, b in zip(ranks, bounds):
+            if r["voxels_read"] > b:
+                sys.exit(f"rank {r['rank']} read {r['voxels_read']} samples, more than its slices and halo: {b} of {total}")
+        if args.np > 1 and sum(reads) >= args.np * total:
+            sys.exit(f"every rank read the whole scan: {reads} of {total}")
+        print(f"samples read per rank: {reads}, bounds {bounds} of {total}")
     print(f"np {args.np}: {name}: byte-identical PLY ({len(a)} bytes), equal summary")
 
 
@@ -100,7 +183,8 @@ def bad_input(args):
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
         [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
-        [os.path.join(args.data, "fuel_64x64x64_uint8.raw")],          # not yet under MPI
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
+        [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
     ]
     for extra in cases:
         r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
@@ -109,7 +193,7 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
-        if "--hidden-features" not in extra and not extra[0].endswith(".raw"):  # one process says the same
+        if "--hidden-features" not in extra:  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
@@ -182,6 +266,12 @@ def main():
         compare(args, "fog", smoke, ["--grid", "density"], grid="density")
     elif args.case == "fog_k":
         compare(args, "fog_k", smoke, ["--isovalue", "0.1", "--method", "cubic"], grid="density")
+    elif args.case == "raw":
+        compare(args, "raw", os.path.join(args.data, "fuel_64x64x64_uint8.raw"), [])
+    elif args.case == "raw_float":
+        compare(args, "raw_float", os.path.join(args.data, "skull_64x64x64_float32.raw"), ["--method", "cubic"])
+    elif args.case == "raw_k":
+        compare(args, "raw_k", os.path.join(args.data, "engine_256x256x128_uint8.raw"), ["--isovalue", "71"])
     elif args.case == "bad_input":
         bad_input(args)
     elif args.case == "interrupt":

@@ -166,3 +166,21 @@ TEST_CASE("Bricks: a plan balances the active voxels and covers the block order"
     for (int p = 0; p < 4; ++p) REQUIRE(std::abs(double(plan.weight(p)) - double(total) / 4) <= 2 * 513);
     for (std::size_t b = 0; b < plan.blockCount(); b += 97) REQUIRE(plan.blockOf(plan.origin(b)) == std::int64_t(b));
 }
+
+TEST_CASE("Bricks: a plan of the topology alone equals the grid's plan", "[bricks][mpi]")
+{
+    // A raw scan read by pieces has only its leaves' value masks on every piece (loadRawPiece).
+    auto grid = sphere(30.0f);
+    grid->tree().addTile(1, openvdb::Coord(200, 0, 0), 1.0f, true); // an active tile's shell too
+    const openvdb::MaskTree topology(grid->tree(), false, openvdb::TopologyCopy());
+    for (int pieces : {1, 3, 5}) {
+        const BrickPlan fromGrid(*grid, pieces), fromTopology(topology, pieces);
+        REQUIRE(fromTopology.blockCount() == fromGrid.blockCount());
+        for (int p = 0; p < pieces; ++p) {
+            REQUIRE(fromTopology.begin(p) == fromGrid.begin(p));
+            REQUIRE(fromTopology.end(p) == fromGrid.end(p));
+            REQUIRE(fromTopology.weight(p) == fromGrid.weight(p));
+        }
+        for (std::size_t b = 0; b < fromGrid.blockCount(); ++b) REQUIRE(fromTopology.origin(b) == fromGrid.origin(b));
+    }
+}

@@ -36,32 +36,49 @@ struct BrickMesherData {
 
 using namespace mc_internal;
 
-BrickPlan::BrickPlan(const openvdb::FloatGrid& grid, int pieces, bool threaded)
-    : mData(std::make_unique<BrickPlanData>())
+namespace {
+
+template <typename TreeT>
+void planPieces(const TreeT& tree, int pieces, bool threaded, BrickPlanData& data)
 {
     if (pieces < 1) OPENVDB_THROW(openvdb::ValueError, "a brick plan needs at least one piece");
-    buildBlockSet(grid.tree(), mData->blocks, threaded);
-    const std::vector<Coord>& origins = mData->blocks.origins;
+    buildBlockSet(tree, data.blocks, threaded);
+    const std::vector<Coord>& origins = data.blocks.origins;
     // Leaves by iteration, not by accessor: an accessor that finds a leaf caches its values,
     // which loads a delay-loaded buffer. The value masks are topology.
     std::vector<std::uint64_t> prefix(origins.size() + 1, 1);
     prefix[0] = 0;
-    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
-        const std::int32_t b = mData->blocks.find(leaf->origin());
+    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+        const std::int32_t b = data.blocks.find(leaf->origin());
         if (b >= 0) prefix[std::size_t(b) + 1] += leaf->onVoxelCount();
     }
     for (std::size_t b = 0; b < origins.size(); ++b) prefix[b + 1] += prefix[b];
     const std::uint64_t total = prefix.back();
-    mData->bounds.assign(std::size_t(pieces) + 1, origins.size());
-    mData->weights.assign(std::size_t(pieces), 0);
-    mData->bounds[0] = 0;
+    data.bounds.assign(std::size_t(pieces) + 1, origins.size());
+    data.weights.assign(std::size_t(pieces), 0);
+    data.bounds[0] = 0;
     for (int p = 1; p < pieces; ++p) {
         const std::uint64_t target = total / std::uint64_t(pieces) * std::uint64_t(p) +
             total % std::uint64_t(pieces) * std::uint64_t(p) / std::uint64_t(pieces);
         // The first block whose weight starts at or after the target.
-        mData->bounds[std::size_t(p)] = std::size_t(std::lower_bound(prefix.begin(), prefix.end() - 1, target) - prefix.begin());
+        data.bounds[std::size_t(p)] = std::size_t(std::lower_bound(prefix.begin(), prefix.end() - 1, target) - prefix.begin());
     }
-    for (int p = 0; p < pieces; ++p) mData->weights[std::size_t(p)] = prefix[end(p)] - prefix[begin(p)];
+    for (int p = 0; p < pieces; ++p)
+        data.weights[std::size_t(p)] = prefix[data.bounds[std::size_t(p) + 1]] - prefix[data.bounds[std::size_t(p)]];
+}
+
+} // namespace
+
+BrickPlan::BrickPlan(const openvdb::FloatGrid& grid, int pieces, bool threaded)
+    : mData(std::make_unique<BrickPlanData>())
+{
+    planPieces(grid.tree(), pieces, threaded, *mData);
+}
+
+BrickPlan::BrickPlan(const openvdb::MaskTree& topology, int pieces, bool threaded)
+    : mData(std::make_unique<BrickPlanData>())
+{
+    planPieces(topology, pieces, threaded, *mData);
 }
 
 BrickPlan::~BrickPlan() = default;

@@ -755,6 +755,8 @@ void OutputBatch::addText(const std::string& path, const std::string& text)
     mImpl->files.push_back(std::move(file));
 }
 
+void OutputBatch::addShared(std::unique_ptr<SharedPlyFile> file) { mImpl->files.push_back(std::move(file->mFile)); }
+
 void OutputBatch::commit()
 {
     for (auto& file : mImpl->files) file->commit();
@@ -780,8 +782,6 @@ std::string SharedPlyFile::header(const Mesh& piece, std::uint64_t vertices, std
     checkColumns(*mFile, piece.faceAttributes, piece.triangleCount(), "face", {"vertex_indices"});
     return plyHeader(*mFile, piece, options, std::size_t(vertices), std::size_t(faces));
 }
-
-void SharedPlyFile::commit() { mFile->commit(); }
 
 std::pair<std::size_t, std::size_t> plyRowBytes(const Mesh& mesh)
 {

@@ -1,11 +1,14 @@
 // isouq: raw scans, `name_XxYxZ_dtype.raw` (SPEC §8; docs/inputs.md).
 #include "SourcesInternal.h"
 
+#include "isouq/Bricks.h"
+
 #include <fcntl.h>
 #include <unistd.h>
 
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -57,7 +60,17 @@ void RawSlabReader::readSlices(int z0, int z1, char* out) const
     }
 }
 
-LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+namespace {
+
+/// What the request and the file name say about a raw scan, checked against the file's size.
+struct RawScan {
+    std::string path, file, name; ///< name: the grid's
+    Coord dims;
+    const RawTypeInfo* type = nullptr;
+    openvdb::Vec3d spacing;
+};
+
+RawScan rawScan(const VolumeRequest& request)
 {
     const std::string& path = request.input;
     const std::uint64_t size = fileSize(path);
@@ -108,35 +121,212 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
             throw InputError("--spacing must be positive and finite, got " + fmt(spacing[a]));
         }
     }
+    return {path, file, named ? m[1].str() : fs::path(path).stem().string(), Coord(int(d[0]), int(d[1]), int(d[2])),
+        &type, spacing};
+}
 
-    const RawSlabReader reader(path, Coord(int(d[0]), int(d[1]), int(d[2])), type.type);
-    const int nz = int(d[2]);
-    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
-    std::string isovalueSource = "given";
-    float isovalue = request.isovalue.value_or(0.0f);
-    if (!request.isovalue) {
-        RawStats stats = rawStats(reader, 0, nz);
-        if (type.type == SampleType::Float32 || type.type == SampleType::Float64) {
-            const Range range = stats.range;
-            stats.counts = rawStats(reader, 0, nz, &range).counts;
-        }
-        isovalue = float(otsuOfRawStats(stats, type.type));
-        isovalueSource = "Otsu (starting value)";
-    }
-    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
-    LoadedVolume volume = denseVolume(
-        sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
+/// The grid's name and transform, the source and the description of a raw scan's volume.
+void finishRaw(LoadedVolume& volume, const RawScan& scan, const std::string& isovalueSource)
+{
+    const openvdb::Vec3d& spacing = scan.spacing;
     volume.isovalueSource = isovalueSource;
-    volume.grid->setName(named ? m[1].str() : fs::path(path).stem().string());
+    volume.grid->setName(scan.name);
     auto transform = openvdb::math::Transform::createLinearTransform(1.0);
     transform->preScale(spacing);
     volume.grid->setTransform(transform);
-    volume.description = file + ": " + type.name + " " + volume.description + ", spacing "
+    volume.description = scan.file + ": " + scan.type->name + " " + volume.description + ", spacing "
         + fmt(spacing[0]) + "," + fmt(spacing[1]) + "," + fmt(spacing[2]);
+}
+
+} // namespace
+
+/// The isovalue of a raw scan and where it comes from: given, or Otsu's of the statistics
+/// @a stats(histogramRange) gives (of the whole scan).
+template <typename Stats>
+std::pair<float, std::string> rawIsovalue(const VolumeRequest& request, SampleType type, Stats&& stats)
+{
+    float isovalue = request.isovalue.value_or(0.0f);
+    std::string source = "given";
+    if (!request.isovalue) {
+        RawStats whole = stats(nullptr);
+        if (type == SampleType::Float32 || type == SampleType::Float64) {
+            const Range range = whole.range;
+            whole.counts = stats(&range).counts;
+        }
+        isovalue = float(otsuOfRawStats(whole, type));
+        source = "Otsu (starting value)";
+    }
+    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
+    return {isovalue, source};
+}
+
+LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+{
+    const RawScan scan = rawScan(request);
+    const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
+    const int nz = scan.dims.z();
+    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
+    const auto [isovalue, source] = rawIsovalue(request, scan.type->type,
+        [&](const Range* range) { return rawStats(reader, 0, nz, range); });
+    LoadedVolume volume = denseVolume(
+        sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
+    finishRaw(volume, scan, source);
     return volume;
 }
 
-
 } // namespace sources_internal
+
+// ---- By pieces (SPEC §10 "MPI"; docs/mpi.md) -----------------------------------------------
+
+namespace {
+
+using Words = PieceComm::Words;
+
+std::uint64_t bitsOf(double v)
+{
+    std::uint64_t w;
+    std::memcpy(&w, &v, sizeof w);
+    return w;
+}
+double doubleOf(std::uint64_t w)
+{
+    double v;
+    std::memcpy(&v, &w, sizeof v);
+    return v;
+}
+
+} // namespace
+
+RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+{
+    namespace si = sources_internal;
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+    using openvdb::Coord;
+    openvdb::initialize();
+    const si::RawScan scan = si::rawScan(request);
+    const si::RawSlabReader reader(scan.path, scan.dims, scan.type->type);
+    const Coord dims = scan.dims;
+    si::checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
+    const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + si::kBlock - 1) / si::kBlock;
+    const auto firstLayer = [&](int p) { return int(std::int64_t(layers) * p / pieces); };
+    const int l0 = firstLayer(piece), l1 = firstLayer(piece + 1);
+    const int z0 = std::min(l0 * si::kBlock, dims.z()), z1 = std::min(l1 * si::kBlock, dims.z());
+
+    // Otsu's statistics: each piece its slices, joined in piece order.
+    const auto [isovalue, source] = si::rawIsovalue(request, scan.type->type, [&](const si::Range* range) {
+        si::RawStats part;
+        comm.agree([&] { part = si::rawStats(reader, z0, z1, range); });
+        Words words = {bitsOf(part.range.min), bitsOf(part.range.max)};
+        words.insert(words.end(), part.counts.begin(), part.counts.end());
+        si::RawStats whole;
+        for (const Words& w : comm.allgather(words)) {
+            si::RawStats q;
+            q.range.min = doubleOf(w[0]), q.range.max = doubleOf(w[1]);
+            q.counts.assign(w.begin() + 2, w.end());
+            whole.add(q);
+        }
+        return whole;
+    });
+    si::SparseResult sparse;
+    comm.agree([&] { sparse = si::sparsifyRaw(reader, l0, l1, request.keep, isovalue, interrupter); });
+    RawPiece out;
+    // sparsifyRaw reads kHalo slices on either side of the layers (the stencils' reach).
+    if (z0 < z1)
+        out.voxelsRead = std::uint64_t(dims.x()) * std::uint64_t(dims.y()) *
+            std::uint64_t(std::min(z1 + si::kHalo, dims.z()) - std::max(z0 - si::kHalo, 0));
+
+    // The whole scan's range and block counts, and the topology of every piece's leaves.
+    si::SparseResult whole;
+    for (const Words& w : comm.allgather({bitsOf(sparse.range.min), bitsOf(sparse.range.max), sparse.blocks, sparse.kept})) {
+        si::Range r;
+        r.min = doubleOf(w[0]), r.max = doubleOf(w[1]);
+        whole.range.add(r);
+        whole.blocks += std::size_t(w[2]), whole.kept += std::size_t(w[3]);
+    }
+    constexpr std::size_t kMaskWords = LeafT::NodeMaskType::WORD_COUNT;
+    Words leaves;
+    for (auto leaf = sparse.tree->cbeginLeaf(); leaf; ++leaf) {
+        const Coord o = leaf->origin();
+        leaves.insert(leaves.end(), {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
+        for (std::size_t w = 0; w < kMaskWords; ++w) leaves.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
+    }
+    openvdb::MaskTree topology;
+    for (const Words& w : comm.allgather(leaves))
+        for (std::size_t i = 0; i < w.size(); i += 3 + kMaskWords) {
+            auto* leaf = topology.touchLeaf(Coord(int(w[i]), int(w[i + 1]), int(w[i + 2])));
+            for (std::size_t k = 0; k < kMaskWords; ++k) leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(k)) = w[i + 3 + k];
+        }
+    auto plan = std::make_shared<BrickPlan>(topology, pieces);
+    out.plan = plan;
+
+    // The blocks this piece's stencils reach: its own and those one block around them, inside
+    // the data; each from the piece whose layers hold it.
+    const Coord blockCount((dims.x() + si::kBlock - 1) / si::kBlock, (dims.y() + si::kBlock - 1) / si::kBlock, layers);
+    std::vector<Coord> wanted;
+    for (std::size_t b = plan->begin(piece); b < plan->end(piece); ++b)
+        for (int d = 0; d < 27; ++d) {
+            const Coord o = plan->origin(b).offsetBy(si::kBlock * (d % 3 - 1), si::kBlock * (d / 3 % 3 - 1), si::kBlock * (d / 9 - 1));
+            bool inside = true;
+            for (int a = 0; a < 3; ++a) inside = inside && o[a] >= 0 && o[a] < si::kBlock * blockCount[a];
+            if (inside) wanted.push_back(o);
+        }
+    std::sort(wanted.begin(), wanted.end());
+    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+    std::vector<Words> requests(static_cast<std::size_t>(pieces));
+    for (const Coord& o : wanted) {
+        const int layer = o.z() / si::kBlock;
+        int owner = 0;
+        while (owner + 1 < pieces && firstLayer(owner + 1) <= layer) ++owner;
+        requests[std::size_t(owner)].insert(requests[std::size_t(owner)].end(),
+            {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
+    }
+    const std::vector<Words> asked = comm.exchange(requests);
+    std::vector<Words> answers(static_cast<std::size_t>(pieces));
+    for (int r = 0; r < pieces; ++r) // a leaf: 1, its mask, its 512 values; a tile: 0, its value
+        for (std::size_t i = 0; i < asked[std::size_t(r)].size(); i += 3) {
+            const Words& a = asked[std::size_t(r)];
+            const Coord o(int(a[i]), int(a[i + 1]), int(a[i + 2]));
+            Words& answer = answers[std::size_t(r)];
+            if (const LeafT* leaf = sparse.tree->probeConstLeaf(o)) {
+                answer.push_back(1);
+                for (std::size_t w = 0; w < kMaskWords; ++w) answer.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
+                const std::size_t at = answer.size();
+                answer.resize(at + LeafT::SIZE / 2);
+                std::memcpy(answer.data() + at, leaf->buffer().data(), LeafT::SIZE * sizeof(float));
+            } else {
+                answer.insert(answer.end(), {0, std::uint64_t(bitsOf(double(sparse.tree->getValue(o))))});
+            }
+        }
+    sparse.tree.reset();
+    const std::vector<Words> answered = comm.exchange(answers);
+    whole.tree = std::make_shared<openvdb::FloatTree>(0.0f);
+    {
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*whole.tree);
+        for (int r = 0; r < pieces; ++r) {
+            const Words& req = requests[std::size_t(r)];
+            const Words& ans = answered[std::size_t(r)];
+            std::size_t at = 0;
+            for (std::size_t i = 0; i < req.size(); i += 3) {
+                const Coord o(int(req[i]), int(req[i + 1]), int(req[i + 2]));
+                if (ans[at] == 1) {
+                    auto leaf = std::make_unique<LeafT>(o, 0.0f);
+                    for (std::size_t w = 0; w < kMaskWords; ++w)
+                        leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)) = ans[at + 1 + w];
+                    std::memcpy(leaf->buffer().data(), ans.data() + at + 1 + kMaskWords, LeafT::SIZE * sizeof(float));
+                    acc.addLeaf(leaf.release());
+                    at += 1 + kMaskWords + LeafT::SIZE / 2;
+                } else {
+                    acc.addTile(/*level=*/1, o, float(doubleOf(ans[at + 1])), /*active=*/false);
+                    at += 2;
+                }
+            }
+        }
+    }
+    if (whole.range.min <= whole.range.max) whole.tree->root().setBackground(float(whole.range.min), false);
+    out.volume = si::denseVolume(std::move(whole), dims, isovalue);
+    si::finishRaw(out.volume, scan, source);
+    out.volume.input = request.input;
+    return out;
+}
 
 } // namespace isouq

@@ -14,10 +14,28 @@
 #include <openvdb/openvdb.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <vector>
 
 namespace isouq {
+
+/// The collectives that a volume read by pieces needs, over the processes that each mesh one
+/// piece (MPI ranks in the CLI, nodes/Ranks.h). Every collective is called by every piece in
+/// the same order.
+class PieceComm {
+public:
+    using Words = std::vector<std::uint64_t>;
+    virtual ~PieceComm() = default;
+    virtual int rank() const = 0;
+    virtual int size() const = 0;
+    /// Each piece's @a words, in piece order, on every piece.
+    virtual std::vector<Words> allgather(const Words& words) const = 0;
+    /// Sends out[r] to piece r; returns what each piece sent here.
+    virtual std::vector<Words> exchange(const std::vector<Words>& out) const = 0;
+    /// Runs @a body, then agrees: when it threw on any piece, every piece throws.
+    virtual void agree(const std::function<void()>& body) const = 0;
+};
 
 namespace mc_internal {
 struct BrickPlanData;
@@ -31,6 +49,9 @@ struct BrickMesherData;
 class BrickPlan {
 public:
     BrickPlan(const openvdb::FloatGrid& grid, int pieces, bool threaded = true);
+    /// The same plan from the topology alone (active voxels and tiles of a grid whose values
+    /// are spread over the pieces: a raw scan read by z-layers).
+    BrickPlan(const openvdb::MaskTree& topology, int pieces, bool threaded = true);
     ~BrickPlan();
     BrickPlan(const BrickPlan&) = delete;
     BrickPlan& operator=(const BrickPlan&) = delete;

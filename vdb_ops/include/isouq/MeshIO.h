@@ -74,6 +74,8 @@ Mesh readPly(const std::string& path, PlyInfo* info = nullptr);
 /// @throw IoError naming the path and the reason.
 void checkWritable(const std::string& path);
 
+class SharedPlyFile;
+
 /// Several outputs that appear together or not at all (a mesh, its hidden-feature mesh and
 /// the summary): each is written to its temporary file when added, and commit() renames them
 /// all. Destroyed without commit (an error or an interruption), it removes every temporary.
@@ -90,6 +92,8 @@ public:
     void addVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options = {});
     /// @throw IoError as writeTextFileAtomic.
     void addText(const std::string& path, const std::string& text);
+    /// A file that several processes wrote (SharedPlyFile): renamed with the others.
+    void addShared(std::unique_ptr<SharedPlyFile> file);
     /// @throw IoError naming the first path that could not be renamed.
     void commit();
 
@@ -105,7 +109,8 @@ class AtomicFile;
 /// A binary PLY file that several processes write together (SPEC §10 "MPI"; docs/mpi.md): one
 /// process creates it under a temporary name next to @a path (removed when this object dies
 /// uncommitted, and by removeTemporaryFiles()) and writes header() at offset 0; every process
-/// writes its piece's plyPieceRows at offsets from a prefix sum (MPI-IO); commit() renames it.
+/// writes its piece's plyPieceRows at offsets from a prefix sum (MPI-IO); OutputBatch::addShared
+/// renames it with the other outputs.
 class SharedPlyFile {
 public:
     /// @throw IoError as writePly.
@@ -118,10 +123,10 @@ public:
     /// The header of a mesh of @a vertices and @a faces with the columns of @a piece: the bytes
     /// writePly writes before the rows. @throw IoError as writePly.
     std::string header(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, const PlyOptions& options) const;
-    /// @throw IoError if the file cannot be renamed.
-    void commit();
 
 private:
+    friend class OutputBatch; // commits it with the run's other outputs
+
     std::unique_ptr<meshio_internal::AtomicFile> mFile;
 };
 

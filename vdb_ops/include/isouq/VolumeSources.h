@@ -115,6 +115,28 @@ private:
 LoadedVolume loadVolume(const VolumeRequest& request,
     openvdb::util::NullInterrupter* interrupter = nullptr);
 
+class BrickPlan;  // Bricks.h
+class PieceComm; // Bricks.h
+
+/// This piece's share of a raw scan read by several processes (SPEC §9, §10 "MPI";
+/// docs/mpi.md), the same as loadVolume's grid where this piece meshes.
+struct RawPiece {
+    /// The grid this piece meshes: the leaves and tiles of its blocks of the plan and of the
+    /// blocks around them (the stencils' halo), as loadVolume makes them; elsewhere empty.
+    LoadedVolume volume;
+    std::shared_ptr<const BrickPlan> plan; ///< the whole scan's blocks cut into the pieces
+    std::uint64_t voxelsRead = 0;          ///< samples this piece read from the file
+};
+
+/// loadVolume of a raw scan by pieces (collective over @a comm): piece p reads its z-layers of
+/// 8 slices, [L p / P, L (p + 1) / P) of the L layers, and the 3 slices around them with
+/// positioned reads, and sparsifies them; the Otsu statistics, the ranges and the block counts
+/// are joined, the topology of every piece's leaves gives the plan, and the leaves and tiles
+/// around this piece's blocks come from the pieces that read them.
+/// @throw InputError as loadVolume, on every piece.
+RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm,
+    openvdb::util::NullInterrupter* interrupter = nullptr);
+
 /// A muParser field f(x, y, z) on [lo, hi]^3, default isovalue 0; thread safe (one parser per
 /// thread). @throw InputError naming the position of a parse error.
 std::shared_ptr<const AnalyticField> makeFormulaField(const std::string& expression,

@@ -63,9 +63,12 @@ struct GraphResult {
 };
 
 /// Cooks every node in order, then commits the pending writes. Interruption or a failing
-/// node leaves nothing written (and existing files untouched).
+/// node leaves nothing written (and existing files untouched). With @a ranks (collective; MPI,
+/// docs/mpi.md) every rank runs the graph on its piece, each cook and each write ends with an
+/// agreement, and a failure anywhere throws on every rank the message of the lowest failing
+/// one; a node type that does not cook on ranks (NodeType::onRanks) is refused.
 /// @throw InputError naming the node, IoError, InterruptedError.
 GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interrupter = nullptr,
-    const std::vector<std::string>& keepMeshes = {});
+    const std::vector<std::string>& keepMeshes = {}, const Ranks* ranks = nullptr);
 
 } // namespace isouq::nodes

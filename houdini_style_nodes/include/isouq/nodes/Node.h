@@ -6,6 +6,7 @@
 #pragma once
 
 #include "isouq/nodes/Parm.h"
+#include "isouq/nodes/Ranks.h"
 
 #include <isouq/MeshAttributes.h>
 #include <isouq/MeshIO.h>
@@ -32,14 +33,18 @@ struct MeshData {
     std::string method;    ///< method of the positions ("linear", "weno", "blend", ...)
     bool uncertainty = false; ///< meshed with every method and estimate (MeshSettings)
     nlohmann::json info = nlohmann::json::object(); ///< e.g. "hidden", "threshold", "box" blocks
+    /// On ranks (Ranks.h): the mesh holds this rank's piece, whose triangles name the whole
+    /// mesh's vertices; null in one process.
+    std::shared_ptr<const MeshPiece> piece;
 
     /// Everything but the mesh, for a node that makes a new mesh from this one.
-    MeshData withoutMesh() const { return {Mesh(), isovalue, method, uncertainty, info}; }
+    MeshData withoutMesh() const { return {Mesh(), isovalue, method, uncertainty, info, nullptr}; }
 };
 
 /// The value on one port: which member is set follows the port's type.
 struct NodeValue {
     std::shared_ptr<const LoadedVolume> volume; ///< "volume"
+    std::shared_ptr<const VolumePiece> piece;   ///< "volume" on ranks: what this rank read (Ranks.h)
     std::shared_ptr<const MeshData> mesh;       ///< "mesh"
     nlohmann::json json;                        ///< "json"
 };
@@ -61,6 +66,9 @@ struct CookContext {
     openvdb::util::NullInterrupter* interrupter = nullptr;
     std::vector<std::string>* warnings = nullptr; ///< one line each, naming the skipped item
     std::vector<PendingWrite>* writes = nullptr;
+    /// The ranks the graph runs on (docs/mpi.md), null in one process; only node types marked
+    /// NodeType::onRanks cook there.
+    const Ranks* ranks = nullptr;
     /// Set by the runner (Graph.cc); a context without them (a cook called directly) gets
     /// no timings, no destinations and copies.
     std::function<nlohmann::json()> timingsOfUpstream;
@@ -107,6 +115,7 @@ struct NodeType {
     std::vector<PortSpec> outputs;
     std::function<void(CookContext&)> cook;
     bool meshWriter = false; ///< writes its input mesh to the file its first path parameter names
+    bool onRanks = false;    ///< cooks on MPI ranks, each rank its piece (Ranks.h; docs/mpi.md)
 
     const ParmSpec* findParm(const std::string& token) const
     {

@@ -1,0 +1,494 @@
+// isouq nodes: the nodes' work on ranks (Pieces.h, Ranks.h; SPEC §9, §10 "MPI"; docs/mpi.md).
+// A rank's piece is a contiguous run of the mesher's block order (BrickPlan), so its vertices
+// and triangles are a contiguous run of the one-process output's: the PLY rows go to offsets
+// from prefix sums of the counts, and the summary's sums are carried in rank order.
+#include "Pieces.h"
+
+#include "isouq/nodes/Summary.h"
+
+#include <isouq/Columns.h>
+#include <isouq/Diagnostics.h>
+#include <isouq/Errors.h>
+#include <isouq/MeshIO.h>
+#include <isouq/MeshTopology.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <numeric>
+
+namespace isouq::nodes {
+
+Words wordsOfText(const std::string& text)
+{
+    Words words(1 + (text.size() + 7) / 8, 0);
+    words[0] = text.size();
+    if (!text.empty()) std::memcpy(words.data() + 1, text.data(), text.size());
+    return words;
+}
+
+std::string textOfWords(const Words& words)
+{
+    if (words.empty()) return std::string();
+    return std::string(reinterpret_cast<const char*>(words.data() + 1), std::size_t(words[0]));
+}
+
+void Ranks::step(const std::function<void()>& body, const std::string& where) const
+{
+    int status = 0;
+    std::string message;
+    try {
+        body();
+    } catch (const InterruptedError&) {
+        status = 1;
+    } catch (const std::exception& e) {
+        status = interrupted() ? 1 : 2;
+        message = where + e.what();
+    }
+    if (status == 0 && interrupted()) status = 1;
+    const std::vector<Words> all = allgather({std::uint64_t(status)});
+    int worst = 0, first = -1;
+    for (int r = 0; r < size(); ++r) {
+        worst = std::max(worst, int(all[std::size_t(r)][0]));
+        if (first < 0 && all[std::size_t(r)][0] == 2) first = r;
+    }
+    if (worst == 0) return;
+    if (worst == 1) throw InterruptedError();
+    throw InputError(textOfWords(broadcast(rank() == first ? wordsOfText(message) : Words(), first)));
+}
+
+Words Ranks::carry(const Words& start, const std::function<Words(const Words&)>& add) const
+{
+    const Words out = add(rank() == 0 ? start : receive(rank() - 1));
+    if (rank() + 1 < size()) send(out, rank() + 1);
+    return broadcast(out, size() - 1);
+}
+
+namespace nodes_internal {
+namespace {
+
+std::uint64_t bitsOf(double v)
+{
+    std::uint64_t w;
+    std::memcpy(&w, &v, sizeof w);
+    return w;
+}
+double doubleOf(std::uint64_t w)
+{
+    double v;
+    std::memcpy(&v, &w, sizeof v);
+    return v;
+}
+std::uint64_t bitsOf(float v)
+{
+    std::uint32_t w;
+    std::memcpy(&w, &v, sizeof w);
+    return w;
+}
+float floatOf(std::uint64_t w)
+{
+    const std::uint32_t u = std::uint32_t(w);
+    float v;
+    std::memcpy(&v, &u, sizeof v);
+    return v;
+}
+
+Words packScan(const ActiveValueScan& s)
+{
+    return {s.nonFinite, s.firstLeaf, std::uint64_t(std::int64_t(s.first.x())), std::uint64_t(std::int64_t(s.first.y())),
+        std::uint64_t(std::int64_t(s.first.z())), bitsOf(s.firstValue), bitsOf(s.min), bitsOf(s.max)};
+}
+ActiveValueScan unpackScan(const Words& w)
+{
+    ActiveValueScan s;
+    s.nonFinite = w[0];
+    s.firstLeaf = w[1];
+    s.first = openvdb::Coord(int(std::int64_t(w[2])), int(std::int64_t(w[3])), int(std::int64_t(w[4])));
+    s.firstValue = floatOf(w[5]);
+    s.min = floatOf(w[6]);
+    s.max = floatOf(w[7]);
+    return s;
+}
+
+/// Union-find with the smaller index as root.
+struct Sets {
+    std::vector<std::uint64_t> parent;
+    explicit Sets(std::size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
+    std::uint64_t find(std::uint64_t v)
+    {
+        while (parent[v] != v) v = parent[v] = parent[parent[v]];
+        return v;
+    }
+    bool join(std::uint64_t a, std::uint64_t b)
+    {
+        a = find(a), b = find(b);
+        if (a == b) return false;
+        if (a < b) parent[b] = a;
+        else parent[a] = b;
+        return true;
+    }
+};
+
+std::string lowerExtension(const std::string& path)
+{
+    std::string ext;
+    if (const auto dot = path.find_last_of('.'); dot != std::string::npos && path.find('/', dot) == std::string::npos)
+        ext = path.substr(dot);
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return ext;
+}
+
+} // namespace
+
+VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
+{
+    const std::string ext = lowerExtension(request.input);
+    if (ext != ".vdb" && ext != ".raw")
+        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files are "
+            "read by pieces; docs/mpi.md); run it in one process");
+    if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
+    VolumeOnRanks out;
+    auto piece = std::make_shared<VolumePiece>();
+    if (ext == ".raw") {
+        RawPiece raw = loadRawPiece(request, ranks, interrupter);
+        out.volume = std::make_shared<LoadedVolume>(std::move(raw.volume));
+        piece->plan = std::move(raw.plan);
+        piece->voxelsRead = raw.voxelsRead;
+    } else {
+        request.delayLoad = true;
+        out.volume = std::make_shared<LoadedVolume>(loadVolume(request, interrupter));
+        piece->plan = std::make_shared<BrickPlan>(*out.volume->grid, ranks.size());
+    }
+    out.piece = piece;
+    const openvdb::FloatGrid& grid = *out.volume->grid;
+    const BrickPlan* plan = piece->plan.get();
+    const int rank = ranks.rank();
+    const auto mine = [&](const openvdb::Coord& leafOrigin) { return plan->pieceOfBlock(plan->blockOf(leafOrigin)) == rank; };
+
+    // checkScalarVolume's scan of the active values: each rank its own leaves, rank 0 the tiles.
+    ActiveValueScan scan;
+    ranks.step([&] { scan = scanActiveValues(grid, mine, rank == 0); });
+    const std::vector<Words> scans = ranks.allgather(packScan(scan));
+    scan = ActiveValueScan();
+    for (const Words& w : scans) scan.join(unpackScan(w));
+    if (std::isnan(out.volume->isovalue)) { // a fog volume without an isovalue: Otsu of the whole
+        std::array<std::uint64_t, 256> histogram{};
+        ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); });
+        std::array<std::uint64_t, 256> total{};
+        for (const Words& w : ranks.allgather(Words(histogram.begin(), histogram.end())))
+            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
+        out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total));
+    }
+    if (const std::string problem = checkScalarVolume(grid, out.volume->isovalue, scan); !problem.empty())
+        throw InputError(problem);
+    return out;
+}
+
+std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::FloatGrid& grid,
+    const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
+{
+    const int rank = ranks.rank(), size = ranks.size();
+    const std::shared_ptr<const BrickPlan>& plan = read.plan;
+    BrickMesher mesher(grid, settings, *plan, rank);
+    ranks.step([&] { mesher.count(interrupter); });
+    const std::vector<Words> counts = ranks.allgather({mesher.vertexCount(), mesher.triangleCount()});
+    auto piece = std::make_shared<MeshPiece>();
+    piece->plan = plan;
+    piece->vertexBegin.assign(std::size_t(size) + 1, 0);
+    piece->triangleBegin.assign(std::size_t(size) + 1, 0);
+    for (int r = 0; r < size; ++r) {
+        piece->vertexBegin[std::size_t(r) + 1] = piece->vertexBegin[std::size_t(r)] + counts[std::size_t(r)][0];
+        piece->triangleBegin[std::size_t(r) + 1] = piece->triangleBegin[std::size_t(r)] + counts[std::size_t(r)][1];
+    }
+    ranks.step([&] {
+        mesher.setOffsets(piece->vertexBegin[std::size_t(rank)], piece->triangleBegin[std::size_t(rank)],
+            piece->vertexBegin.back());
+    });
+    // The masks and first vertices of the + neighbours that later ranks own.
+    std::vector<Words> requests(static_cast<std::size_t>(size));
+    for (std::int64_t b : mesher.foreignBlocks()) requests[std::size_t(plan->pieceOfBlock(b))].push_back(std::uint64_t(b));
+    const std::vector<Words> asked = ranks.exchange(requests);
+    std::vector<Words> answers(static_cast<std::size_t>(size));
+    ranks.step([&] {
+        for (int r = 0; r < size; ++r)
+            for (std::uint64_t b : asked[std::size_t(r)]) {
+                Words& out = answers[std::size_t(r)];
+                out.resize(out.size() + BrickMesher::kBlockWords);
+                mesher.describeBlock(std::int64_t(b), out.data() + out.size() - BrickMesher::kBlockWords);
+            }
+    });
+    const std::vector<Words> answered = ranks.exchange(answers);
+    ranks.step([&] {
+        for (int r = 0; r < size; ++r)
+            for (std::size_t i = 0; i < requests[std::size_t(r)].size(); ++i)
+                mesher.learnBlock(std::int64_t(requests[std::size_t(r)][i]),
+                    answered[std::size_t(r)].data() + i * BrickMesher::kBlockWords);
+        mesher.fill(mesh, interrupter);
+    });
+    piece->voxelsRead = read.voxelsRead ? *read.voxelsRead : loadedLeafVoxels(grid);
+    return piece;
+}
+
+nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
+{
+    const int rank = ranks.rank(), size = ranks.size();
+    const BrickPlan& plan = *where.plan;
+    const std::vector<std::uint64_t>& vertexBegin = where.vertexBegin;
+    const std::uint64_t v0 = vertexBegin[std::size_t(rank)], totalVertices = vertexBegin.back();
+    const std::size_t nLocal = piece.vertexCount();
+
+    // Ghosts: vertices of other ranks that this rank's triangles use, with their positions.
+    std::vector<std::uint32_t> ghosts;
+    for (const openvdb::Vec3I& t : piece.triangles)
+        for (int c = 0; c < 3; ++c)
+            if (t[c] < v0 || t[c] >= v0 + nLocal) ghosts.push_back(t[c]);
+    std::sort(ghosts.begin(), ghosts.end());
+    ghosts.erase(std::unique(ghosts.begin(), ghosts.end()), ghosts.end());
+    const auto ownerOf = [&](std::uint64_t g) {
+        return int(std::upper_bound(vertexBegin.begin(), vertexBegin.end(), g) - vertexBegin.begin()) - 1;
+    };
+    std::vector<Words> wanted(static_cast<std::size_t>(size));
+    for (std::uint32_t g : ghosts) wanted[std::size_t(ownerOf(g))].push_back(g);
+    const std::vector<Words> wantedHere = ranks.exchange(wanted);
+    std::vector<Words> positions(static_cast<std::size_t>(size));
+    for (int r = 0; r < size; ++r)
+        for (std::uint64_t g : wantedHere[std::size_t(r)]) {
+            std::uint64_t words[2] = {0, 0};
+            std::memcpy(words, piece.positions[std::size_t(g - v0)].asPointer(), 12);
+            positions[std::size_t(r)].insert(positions[std::size_t(r)].end(), words, words + 2);
+        }
+    const std::vector<Words> got = ranks.exchange(positions);
+    // The piece as its own small mesh: ghosts appended, triangles in local indices.
+    Mesh local;
+    local.positions.reserve(nLocal + ghosts.size());
+    local.positions = piece.positions;
+    local.positions.resize(nLocal + ghosts.size());
+    for (int r = 0; r < size; ++r)
+        for (std::size_t i = 0; i < wanted[std::size_t(r)].size(); ++i) {
+            const auto at = std::lower_bound(ghosts.begin(), ghosts.end(), std::uint32_t(wanted[std::size_t(r)][i]));
+            std::memcpy(local.positions[nLocal + std::size_t(at - ghosts.begin())].asPointer(),
+                got[std::size_t(r)].data() + 2 * i, 12);
+        }
+    const auto localIndex = [&](std::uint32_t g) -> std::uint32_t {
+        if (g >= v0 && g < v0 + nLocal) return std::uint32_t(g - v0);
+        return std::uint32_t(nLocal + std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin()));
+    };
+    local.triangles = piece.triangles;
+    for (openvdb::Vec3I& t : local.triangles)
+        for (int c = 0; c < 3; ++c) t[c] = localIndex(t[c]);
+    const auto globalIndex = [&](std::uint32_t l) -> std::uint64_t { return l < nLocal ? v0 + l : ghosts[l - nLocal]; };
+
+    // Shared vertices: those that triangles of another rank may use (an edge of a cell that
+    // another rank meshes). Only they can join components or edges across ranks.
+    std::vector<std::uint8_t> shared(local.positions.size(), 1);
+    {
+        const auto* ei = piece.vertexAttributes.find<std::int32_t>(col::kEdgeI);
+        const auto* ej = piece.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
+        const auto* ek = piece.vertexAttributes.find<std::int32_t>(col::kEdgeK);
+        const auto* ax = piece.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
+        if (nLocal > 0 && (!ei || !ej || !ek || !ax))
+            throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
+        for (std::size_t v = 0; v < nLocal; ++v) {
+            const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
+            const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
+            bool other = false;
+            if ((e[a1] & 7) == 0 || (e[a2] & 7) == 0) // else its four cells are in its block
+                for (int d = 0; d < 4 && !other; ++d) {
+                    openvdb::Coord c = e;
+                    c[a1] -= d & 1;
+                    c[a2] -= d >> 1;
+                    const int p = plan.pieceOfCell(c);
+                    other = p >= 0 && p != rank;
+                }
+            shared[v] = other;
+        }
+    }
+
+    // Area, volume and statistics, carried from rank to rank in the one-process order, about
+    // the centre of the whole mesh's bounding box (as measureTopology).
+    Words box(6);
+    for (int c = 0; c < 3; ++c) {
+        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+        for (std::size_t v = 0; v < nLocal; ++v) {
+            lo = std::min(lo, double(piece.positions[v][c]));
+            hi = std::max(hi, double(piece.positions[v][c]));
+        }
+        box[std::size_t(c)] = bitsOf(lo), box[std::size_t(c) + 3] = bitsOf(hi);
+    }
+    std::array<double, 3> lo, hi, centre;
+    lo.fill(std::numeric_limits<double>::infinity());
+    hi.fill(-std::numeric_limits<double>::infinity());
+    for (const Words& w : ranks.allgather(box))
+        for (std::size_t c = 0; c < 3; ++c) lo[c] = std::min(lo[c], doubleOf(w[c])), hi[c] = std::max(hi[c], doubleOf(w[c + 3]));
+    for (std::size_t c = 0; c < 3; ++c) centre[c] = 0.5 * (lo[c] + hi[c]);
+    std::vector<const std::vector<float>*> columns;
+    std::vector<std::string> names;
+    for (const ColumnInfo& c : columnTable())
+        if (const auto* column = c.summary ? piece.vertexAttributes.find<float>(c.name) : nullptr) {
+            columns.push_back(column);
+            names.emplace_back(c.name);
+        }
+    Words start(3 + 5 * columns.size(), 0);
+    for (std::size_t c = 0; c < columns.size(); ++c) { // an empty StatisticsSums
+        const StatisticsSums empty;
+        start[3 + 5 * c] = bitsOf(empty.lo), start[4 + 5 * c] = bitsOf(empty.hi);
+    }
+    const Words sums = ranks.carry(start, [&](const Words& in) {
+        GeometrySums geometry{doubleOf(in[0]), doubleOf(in[1]), std::size_t(in[2])};
+        if (totalVertices > 0)
+            addTriangleGeometry(local.positions, local.triangles.data(), local.triangles.data() + local.triangles.size(),
+                centre, geometry);
+        Words out = {bitsOf(geometry.area), bitsOf(geometry.signedVolume), geometry.degenerate};
+        for (std::size_t c = 0; c < columns.size(); ++c) {
+            const std::uint64_t* w = in.data() + 3 + 5 * c;
+            StatisticsSums s;
+            s.lo = doubleOf(w[0]), s.hi = doubleOf(w[1]), s.sum = doubleOf(w[2]), s.sumSq = doubleOf(w[3]);
+            s.count = std::size_t(w[4]);
+            s.add(columns[c]->data(), columns[c]->size());
+            out.insert(out.end(), {bitsOf(s.lo), bitsOf(s.hi), bitsOf(s.sum), bitsOf(s.sumSq), s.count});
+        }
+        return out;
+    });
+
+    MeshTopologyStats topo;
+    std::vector<std::uint32_t> labels;
+    ranks.step([&] { topo = measureTopology(local, &labels, /*geometry=*/false); });
+    // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
+    Words componentPairs; // (global vertex, local component) of the shared vertices used
+    for (std::size_t f = 0; f < local.triangles.size(); ++f) {
+        const openvdb::Vec3I& t = local.triangles[f];
+        for (int c = 0; c < 3; ++c) {
+            const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+            if (shared[a]) componentPairs.insert(componentPairs.end(), {globalIndex(a), labels[f]});
+            if (a != b && shared[a] && shared[b])
+                sharedEdges.emplace_back(std::min(globalIndex(a), globalIndex(b)), std::max(globalIndex(a), globalIndex(b)));
+        }
+    }
+    std::sort(sharedEdges.begin(), sharedEdges.end());
+    Words edgeUses; // (lo, hi, uses)
+    std::size_t localBoundary = 0, localNonManifold = 0;
+    for (std::size_t i = 0; i < sharedEdges.size();) {
+        std::size_t j = i + 1;
+        while (j < sharedEdges.size() && sharedEdges[j] == sharedEdges[i]) ++j;
+        edgeUses.insert(edgeUses.end(), {sharedEdges[i].first, sharedEdges[i].second, std::uint64_t(j - i)});
+        localBoundary += j - i == 1;
+        localNonManifold += j - i > 2;
+        i = j;
+    }
+    const std::vector<Words> allTallies =
+        ranks.gather({topo.boundaryEdges - localBoundary, topo.nonManifoldEdges - localNonManifold, topo.components});
+    const std::vector<Words> allEdges = ranks.gather(edgeUses);
+    const std::vector<Words> allPairs = ranks.gather(componentPairs);
+    if (rank != 0) return nlohmann::json::object();
+
+    // Edges and components across the pieces' borders.
+    std::size_t boundary = 0, nonManifold = 0;
+    std::vector<std::uint64_t> componentBase(std::size_t(size) + 1, 0);
+    for (int r = 0; r < size; ++r) {
+        boundary += allTallies[std::size_t(r)][0];
+        nonManifold += allTallies[std::size_t(r)][1];
+        componentBase[std::size_t(r) + 1] = componentBase[std::size_t(r)] + allTallies[std::size_t(r)][2];
+    }
+    std::vector<std::array<std::uint64_t, 3>> edges;
+    for (const Words& w : allEdges)
+        for (std::size_t i = 0; i < w.size(); i += 3) edges.push_back({w[i], w[i + 1], w[i + 2]});
+    std::sort(edges.begin(), edges.end());
+    for (std::size_t i = 0; i < edges.size();) {
+        std::uint64_t uses = 0;
+        std::size_t j = i;
+        for (; j < edges.size() && edges[j][0] == edges[i][0] && edges[j][1] == edges[i][1]; ++j) uses += edges[j][2];
+        boundary += uses == 1;
+        nonManifold += uses > 2;
+        i = j;
+    }
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> pairs; // (global vertex, component node)
+    for (int r = 0; r < size; ++r)
+        for (std::size_t i = 0; i < allPairs[std::size_t(r)].size(); i += 2)
+            pairs.emplace_back(allPairs[std::size_t(r)][i], componentBase[std::size_t(r)] + allPairs[std::size_t(r)][i + 1]);
+    std::sort(pairs.begin(), pairs.end());
+    Sets sets(componentBase.back());
+    std::size_t components = componentBase.back();
+    for (std::size_t i = 1; i < pairs.size(); ++i)
+        if (pairs[i].first == pairs[i - 1].first && sets.join(pairs[i].second, pairs[i - 1].second)) --components;
+
+    // The keys of summarizeMesh.
+    nlohmann::json s;
+    s["vertices"] = totalVertices;
+    s["triangles"] = where.triangleBegin.back();
+    s["boundary_edges"] = boundary;
+    s["non_manifold_edges"] = nonManifold;
+    s["components"] = components;
+    s["degenerate_triangles"] = std::size_t(sums[2]);
+    s["area"] = doubleOf(sums[0]);
+    s["enclosed_volume"] = std::abs(doubleOf(sums[1]));
+    for (std::size_t c = 0; c < columns.size(); ++c) {
+        const std::uint64_t* w = sums.data() + 3 + 5 * c;
+        StatisticsSums st;
+        st.lo = doubleOf(w[0]), st.hi = doubleOf(w[1]), st.sum = doubleOf(w[2]), st.sumSq = doubleOf(w[3]);
+        st.count = std::size_t(w[4]);
+        s[names[c]] = st.result();
+    }
+    return s;
+}
+
+void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::json& timings, nlohmann::json& summary)
+{
+    const MeshPiece& piece = *mesh.piece;
+    const int rank = ranks.rank();
+    Words mine = {piece.voxelsRead, mesh.mesh.vertexCount(), mesh.mesh.triangleCount(),
+        piece.plan->end(rank) - piece.plan->begin(rank), piece.plan->weight(rank)};
+    const Words text = wordsOfText(timings.dump());
+    mine.insert(mine.end(), text.begin(), text.end());
+    const std::vector<Words> all = ranks.gather(mine);
+    if (rank != 0) return;
+    nlohmann::json list = nlohmann::json::array(), slowest = nlohmann::json::object();
+    for (int r = 0; r < ranks.size(); ++r) {
+        const Words& w = all[std::size_t(r)];
+        const nlohmann::json times = nlohmann::json::parse(textOfWords(Words(w.begin() + 5, w.end())));
+        list.push_back({{"rank", r}, {"voxels_read", w[0]}, {"vertices", w[1]}, {"triangles", w[2]}, {"blocks", w[3]},
+            {"weight", w[4]}, {"timings_ms", times}});
+        for (const auto& [key, value] : times.items())
+            slowest[key] = std::max(slowest.value(key, 0.0), value.get<double>());
+    }
+    summary["ranks"] = list;
+    summary["timings_ms"] = slowest;
+}
+
+void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
+    const PlyOptions& options, OutputBatch& batch)
+{
+    const int rank = ranks.rank();
+    const std::uint64_t vertices = where.vertexBegin.back(), triangles = where.triangleBegin.back();
+    std::unique_ptr<SharedPlyFile> file;
+    std::string header;
+    ranks.step([&] {
+        if (rank != 0) return;
+        file = std::make_unique<SharedPlyFile>(path);
+        header = file->header(piece, vertices, triangles, options);
+    });
+    Words w = ranks.broadcast(rank == 0 ? wordsOfText(file->temporaryPath()) : Words(), 0);
+    const std::string temp = textOfWords(w);
+    const std::uint64_t headerBytes = ranks.broadcast({header.size()}, 0)[0];
+    const auto [vStride, fStride] = plyRowBytes(piece);
+    {
+        const std::unique_ptr<SharedFile> shared = ranks.openShared(temp);
+        ranks.step([&] {
+            if (!shared) throw IoError("cannot write " + path + ": MPI_File_open failed");
+            if (rank == 0) shared->writeAt(0, header.data(), header.size(), path);
+            std::uint64_t vertexAt = headerBytes + where.vertexBegin[std::size_t(rank)] * vStride;
+            std::uint64_t faceAt = headerBytes + vertices * vStride + where.triangleBegin[std::size_t(rank)] * fStride;
+            plyPieceRows(piece, vertices, [&](bool faces, const char* data, std::size_t bytes) {
+                std::uint64_t& at = faces ? faceAt : vertexAt;
+                shared->writeAt(at, data, bytes, path);
+                at += bytes;
+            });
+        });
+    }
+    if (file) batch.addShared(std::move(file));
+}
+
+} // namespace nodes_internal
+} // namespace isouq::nodes

@@ -1,0 +1,43 @@
+// isouq nodes (internal): what read_volume, mesh, summary and write_ply do on ranks (Ranks.h;
+// SPEC §9, §10 "MPI"; docs/mpi.md). Each function is collective: every rank calls it.
+#pragma once
+
+#include "isouq/nodes/Node.h"
+
+#include <isouq/Bricks.h>
+#include <isouq/VolumeSources.h>
+
+namespace isouq::nodes::nodes_internal {
+
+struct VolumeOnRanks {
+    std::shared_ptr<LoadedVolume> volume;
+    std::shared_ptr<const VolumePiece> piece;
+};
+
+/// loadVolume by pieces, the block order cut into one piece per rank: a .vdb with delayed
+/// loading (topology in memory, leaf values in the file until touched), a .raw by z-layers
+/// (loadRawPiece); then checkScalarVolume over the values of every rank's own leaves joined
+/// (with the Otsu histograms of a fog volume without an isovalue).
+/// @throw InputError as loadVolume and checkScalarVolume, on every rank.
+VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter);
+
+/// This rank's piece of extractIsosurface(grid, settings) into @a mesh (BrickMesher): count
+/// pass, prefix sums of the counts, the masks of + neighbours that later ranks own, fill pass.
+std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::FloatGrid& grid,
+    const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter);
+
+/// summarizeMesh of the whole mesh, on rank 0 (an empty object elsewhere): sums carried from
+/// rank to rank in the one-process order (bit-equal), edges and components joined over the
+/// vertices that another rank's cells use.
+nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where);
+
+/// On rank 0, @a summary gets `ranks` (per rank: voxels_read, vertices, triangles, blocks,
+/// weight and its @a timings) and `timings_ms`, the slowest rank's per entry.
+void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::json& timings, nlohmann::json& summary);
+
+/// writePly of the whole mesh by every rank: rank 0 creates the temporary file and writes the
+/// header, every rank its rows at the offsets of its piece; rank 0's @a batch commits it.
+void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
+    const PlyOptions& options, OutputBatch& batch);
+
+} // namespace isouq::nodes::nodes_internal
