@@ -69,32 +69,6 @@ Words Ranks::carry(const Words& start, const std::function<Words(const Words&)>&
 namespace nodes_internal {
 namespace {
 
-std::uint64_t bitsOf(double v)
-{
-    std::uint64_t w;
-    std::memcpy(&w, &v, sizeof w);
-    return w;
-}
-double doubleOf(std::uint64_t w)
-{
-    double v;
-    std::memcpy(&v, &w, sizeof v);
-    return v;
-}
-std::uint64_t bitsOf(float v)
-{
-    std::uint32_t w;
-    std::memcpy(&w, &v, sizeof w);
-    return w;
-}
-float floatOf(std::uint64_t w)
-{
-    const std::uint32_t u = std::uint32_t(w);
-    float v;
-    std::memcpy(&v, &u, sizeof v);
-    return v;
-}
-
 Words packScan(const ActiveValueScan& s)
 {
     return {s.nonFinite, s.firstLeaf, std::uint64_t(std::int64_t(s.first.x())), std::uint64_t(std::int64_t(s.first.y())),

@@ -182,19 +182,6 @@ namespace {
 
 using Words = PieceComm::Words;
 
-std::uint64_t bitsOf(double v)
-{
-    std::uint64_t w;
-    std::memcpy(&w, &v, sizeof w);
-    return w;
-}
-double doubleOf(std::uint64_t w)
-{
-    double v;
-    std::memcpy(&v, &w, sizeof v);
-    return v;
-}
-
 } // namespace
 
 RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)

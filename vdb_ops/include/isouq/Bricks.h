@@ -14,6 +14,7 @@
 #include <openvdb/openvdb.h>
 
 #include <cstdint>
+#include <cstring>
 #include <functional>
 #include <memory>
 #include <vector>
@@ -36,6 +37,34 @@ public:
     /// Runs @a body, then agrees: when it threw on any piece, every piece throws.
     virtual void agree(const std::function<void()>& body) const = 0;
 };
+
+/// Numbers as Words and back, bit for bit, so that what one piece computes reaches the others
+/// unchanged (sums carried between pieces stay bit-equal to one process's, SPEC §9).
+inline std::uint64_t bitsOf(double v)
+{
+    std::uint64_t w;
+    std::memcpy(&w, &v, sizeof w);
+    return w;
+}
+inline double doubleOf(std::uint64_t w)
+{
+    double v;
+    std::memcpy(&v, &w, sizeof v);
+    return v;
+}
+inline std::uint64_t bitsOf(float v)
+{
+    std::uint32_t w;
+    std::memcpy(&w, &v, sizeof w);
+    return w;
+}
+inline float floatOf(std::uint64_t w)
+{
+    const std::uint32_t u = std::uint32_t(w);
+    float v;
+    std::memcpy(&v, &u, sizeof v);
+    return v;
+}
 
 namespace mc_internal {
 struct BrickPlanData;
