@@ -229,10 +229,7 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
                 created.append(hidden)
                 obj.isouq.partner, hidden.isouq.partner = hidden, obj
         except _EXPECTED as e:
-            for o in created:
-                me = o.data
-                bpy.data.objects.remove(o)
-                bpy.data.meshes.remove(me)
+            _remove_objects(created)
             self.report({"ERROR"}, f"isouq output unreadable: {e}")
             return {"CANCELLED"}
         for o in created:
@@ -257,16 +254,12 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
                 hidden = views.import_mesh(context, native.to_isouq_mesh(result.hidden),
                                            name + "_hidden", "HIDDEN", job.request.input)
                 created.append(hidden)
-                hidden.isouq.summary = obj.isouq.summary
-                obj.isouq.partner, hidden.isouq.partner = hidden, obj
+                _pair_hidden(obj, hidden)
             for o in created:
                 if self._volume is not None:
                     o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
         except _EXPECTED as e:
-            for o in created:
-                me = o.data
-                bpy.data.objects.remove(o)
-                bpy.data.meshes.remove(me)
+            _remove_objects(created)
             self.report({"ERROR"}, f"isouq mesh unusable: {e}")
             return {"CANCELLED"}
         live.remember(obj, job.request)
@@ -285,17 +278,13 @@ class ISOUQ_OT_run_pipeline(bpy.types.Operator):
             if job.hidden_path and os.path.isfile(job.hidden_path):
                 hidden = views.import_ply(context, job.hidden_path, name + "_hidden", "HIDDEN")
                 created.append(hidden)
-                hidden.isouq.summary = obj.isouq.summary
-                obj.isouq.partner, hidden.isouq.partner = hidden, obj
+                _pair_hidden(obj, hidden)
             for o in created:
                 o.isouq.source = job.request.input
                 if self._volume is not None:
                     o.matrix_world = volume_mesh_matrix(self._volume, job.request.grid)
         except _EXPECTED as e:
-            for o in created:
-                me = o.data
-                bpy.data.objects.remove(o)
-                bpy.data.meshes.remove(me)
+            _remove_objects(created)
             self.report({"ERROR"}, f"isouq output unreadable: {e}")
             return {"CANCELLED"}
         context.view_layer.objects.active = obj
@@ -501,6 +490,20 @@ def active_grid(data, name=""):
         return None
     found = next((g for g in grids if g.name == name), None) if name else None
     return found or grids[min(max(grids.active_index, 0), len(grids) - 1)]
+
+
+def _remove_objects(objects):
+    """Removes objects made by a run that failed half way, with their meshes."""
+    for o in objects:
+        me = o.data
+        bpy.data.objects.remove(o)
+        bpy.data.meshes.remove(me)
+
+
+def _pair_hidden(obj, hidden):
+    """The hidden-feature mesh shares the main mesh's summary; each is the other's partner (C6)."""
+    hidden.isouq.summary = obj.isouq.summary
+    obj.isouq.partner, hidden.isouq.partner = hidden, obj
 
 
 def volume_mesh_matrix(volume, grid_name=""):
