@@ -446,7 +446,8 @@ void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& whe
     Words w = ranks.broadcast(rank == 0 ? wordsOfText(file->temporaryPath()) : Words(), 0);
     const std::string temp = textOfWords(w);
     const std::uint64_t headerBytes = ranks.broadcast({header.size()}, 0)[0];
-    const auto [vStride, fStride] = plyRowBytes(piece);
+    const std::pair<std::size_t, std::size_t> strides = plyRowBytes(piece);
+    const std::size_t vStride = strides.first, fStride = strides.second; // captured below (C++17)
     {
         const std::unique_ptr<SharedFile> shared = ranks.openShared(temp);
         ranks.step([&] {

@@ -215,7 +215,8 @@ RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openv
         return whole;
     });
     si::SparseResult sparse;
-    comm.agree([&] { sparse = si::sparsifyRaw(reader, l0, l1, request.keep, isovalue, interrupter); });
+    const auto iso = isovalue; // a structured binding cannot be captured before C++20 (clang)
+    comm.agree([&] { sparse = si::sparsifyRaw(reader, l0, l1, request.keep, iso, interrupter); });
     RawPiece out;
     // sparsifyRaw reads kHalo slices on either side of the layers (the stencils' reach).
     if (z0 < z1)
@@ -272,7 +273,7 @@ RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openv
     for (int r = 0; r < pieces; ++r) // a leaf: 1, its mask, its 512 values; a tile: 0, its value
         for (std::size_t i = 0; i < asked[std::size_t(r)].size(); i += 3) {
             const Words& a = asked[std::size_t(r)];
-            const Coord o(int(a[i]), int(a[i + 1]), int(a[i + 2]));
+            const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
             Words& answer = answers[std::size_t(r)];
             if (const LeafT* leaf = sparse.tree->probeConstLeaf(o)) {
                 answer.push_back(1);
@@ -294,7 +295,7 @@ RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openv
             const Words& ans = answered[std::size_t(r)];
             std::size_t at = 0;
             for (std::size_t i = 0; i < req.size(); i += 3) {
-                const Coord o(int(req[i]), int(req[i + 1]), int(req[i + 2]));
+                const Coord o{int(req[i]), int(req[i + 1]), int(req[i + 2])};
                 if (ans[at] == 1) {
                     auto leaf = std::make_unique<LeafT>(o, 0.0f);
                     for (std::size_t w = 0; w < kMaskWords; ++w)
