@@ -15,7 +15,9 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdint>
 #include <cstring>
+#include <fstream>
 #include <limits>
 #include <thread>
 #include <tuple>
@@ -233,6 +235,27 @@ TEST_CASE("CLI hostile: a small file that implies a mesh larger than memory is r
     requireRefused(r, "memory available", {tmp.path / "out.ply"});
 }
 
+namespace {
+
+/// Waits (at most 60 s) until process @a pid catches SIGINT, SIGTERM and SIGHUP (SigCgt in
+/// /proc/PID/status): a signal sent before the CLI set its handlers would kill it outright, and
+/// a sanitized CLI on a busy machine can take seconds to get there.
+bool catchesSignals(pid_t pid)
+{
+    const std::uint64_t wanted = (1ull << (SIGINT - 1)) | (1ull << (SIGTERM - 1)) | (1ull << (SIGHUP - 1));
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    while (std::chrono::steady_clock::now() < deadline) {
+        std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+        for (std::string line; std::getline(status, line);)
+            if (line.rfind("SigCgt:", 0) == 0 && (std::stoull(line.substr(7), nullptr, 16) & wanted) == wanted)
+                return true;
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return false;
+}
+
+} // namespace
+
 TEST_CASE("CLI hostile: SIGTERM, SIGHUP and a second SIGINT clean up", "[cli][hostile][signals]")
 {
     TempDir tmp;
@@ -247,7 +270,8 @@ TEST_CASE("CLI hostile: SIGTERM, SIGHUP and a second SIGINT clean up", "[cli][ho
                 s.c_str(), static_cast<char*>(nullptr));
             std::_Exit(127);
         }
-        std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+        REQUIRE(catchesSignals(pid));
+        std::this_thread::sleep_for(std::chrono::milliseconds(1000)); // into the run
         ::kill(pid, first);
         if (second) {
             std::this_thread::sleep_for(std::chrono::milliseconds(50));
