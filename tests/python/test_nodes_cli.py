@@ -232,6 +232,7 @@ def test_ctrl_c_cancels_within_a_second(isouq_cli, tmp_path):
             proc.kill()
     elapsed = time.monotonic() - sent
     assert proc.returncode == 130, proc.stderr.read()
-    assert elapsed < 1.0, f"took {elapsed:.2f} s to stop"
+    # A sanitized build runs several times slower: scripts/sanitize.sh sets ISOUQ_TEST_TIME_SCALE.
+    assert elapsed < 1.0 * float(os.environ.get("ISOUQ_TEST_TIME_SCALE", "1")), f"took {elapsed:.2f} s to stop"
     assert sorted(p.name for p in out.iterdir()) == ["out.ply"]
     assert (out / "out.ply").read_text() == "old"

@@ -241,7 +241,7 @@ def test_keyboard_interrupt_cancels_within_a_second(isouq, tmp_path):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
     latency = float(done.stdout.split()[1])
-    assert latency < 1.0, done.stdout
+    assert latency < 1.0 * float(os.environ.get("ISOUQ_TEST_TIME_SCALE", "1")), done.stdout  # sanitize.sh: 3
 
 
 def test_nodes_and_run(isouq, tmp_path):

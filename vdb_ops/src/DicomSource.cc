@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -190,6 +191,15 @@ private:
             return items(value, end, inner, depth + 1, pixelData, true);
         }
         fits(value, length, end, "an element");
+        // GDCM reads the image pixel module's unsigned shorts (samples per pixel, planar
+        // configuration, rows, columns, bits allocated, stored, high bit, pixel representation)
+        // through gdcm::Attribute, which asserts (an abort) on any length but 0 or 2 (fuzz_dicom).
+        static const std::set<std::uint32_t> kPixelUs{0x0002, 0x0006, 0x0010, 0x0011, 0x0100, 0x0101, 0x0102, 0x0103};
+        if (depth == 0 && group == 0x0028 && kPixelUs.count(elem) && length != 0 && length != 2) {
+            char tag[16];
+            std::snprintf(tag, sizeof tag, "(0028,%04X)", unsigned(elem));
+            damaged(pos, std::string(tag) + " is one unsigned short (2 bytes) but announces " + std::to_string(length));
+        }
         if (transfer && group == 0x0002 && elem == 0x0010 && length < 256) {
             transfer->resize(std::size_t(length));
             readAt(value, reinterpret_cast<unsigned char*>(transfer->data()), std::size_t(length));
