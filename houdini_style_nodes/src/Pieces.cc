@@ -118,18 +118,18 @@ std::string lowerExtension(const std::string& path)
 
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
 {
-    const std::string ext = lowerExtension(request.input);
-    if (ext != ".vdb" && ext != ".raw")
-        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files are "
-            "read by pieces; docs/mpi.md); run it in one process");
+    const bool dense = isDensePieceInput(request.input);
+    if (!dense && lowerExtension(request.input) != ".vdb")
+        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files, field: "
+            "and formula: inputs are read by pieces; docs/mpi.md); run it in one process");
     if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
     VolumeOnRanks out;
     auto piece = std::make_shared<VolumePiece>();
-    if (ext == ".raw") {
-        RawPiece raw = loadRawPiece(request, ranks, interrupter);
-        out.volume = std::make_shared<LoadedVolume>(std::move(raw.volume));
-        piece->plan = std::move(raw.plan);
-        piece->voxelsRead = raw.voxelsRead;
+    if (dense) { // z-layers per rank, then each rank's blocks and their halo (SPEC §9)
+        DensePiece layers = loadDensePiece(request, ranks, interrupter);
+        out.volume = std::make_shared<LoadedVolume>(std::move(layers.volume));
+        piece->plan = std::move(layers.plan);
+        piece->voxelsRead = layers.voxelsRead;
     } else {
         request.delayLoad = true;
         out.volume = std::make_shared<LoadedVolume>(loadVolume(request, interrupter));

@@ -222,7 +222,17 @@ void cookTruth(CookContext& ctx)
     auto out = ctx.takeMesh("mesh");
     TruthSettings settings;
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
-    const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
+    TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
+    if (ctx.ranks) { // each vertex on its own: a rank's piece gives its vertices' columns, the counts add up
+        const Words mine = {report.vertices, report.multiRootEdges, report.noRootEdges, report.failedProjections};
+        report = TruthReport();
+        for (const Words& w : ctx.ranks->allgather(mine)) {
+            report.vertices += std::size_t(w[0]);
+            report.multiRootEdges += std::size_t(w[1]);
+            report.noRootEdges += std::size_t(w[2]);
+            report.failedProjections += std::size_t(w[3]);
+        }
+    }
     if (report.failedProjections)
         ctx.warn(std::to_string(report.failedProjections) + " vertices: the projection on the true surface "
             "did not converge (dist_true is NaN there)");
@@ -323,7 +333,7 @@ void addVolumeNodes(std::vector<NodeType>& types)
         {parm("per_method_distance", "Per-Method Distance", ParmType::Bool, false,
             "Also dist_true_<method> for every method's crossing")},
         {{"volume", "volume", "A field: or formula: volume"}, {"mesh", "mesh", "A mesh of it with provenance"}},
-        {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}}, cookTruth});
+        {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}}, cookTruth, /*meshWriter=*/false, /*onRanks=*/true});
 }
 
 } // namespace isouq::nodes::nodes_internal
