@@ -5,7 +5,8 @@
 
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
 raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
-field (field:tubey at 48^3, with its truth node), formula (formula: at 40^3, cubic),
+field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 32^3 with
+--hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic),
 bad_input, interrupt.
 Exit 0 when the check holds; prints what differs otherwise.
 """
@@ -147,6 +148,7 @@ def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
         for k in TIMINGS:
             s.pop(k, None)
         s.pop("output", None)
+        s.get("hidden", {}).pop("output", None)
     if s1 != s2:
         keys = sorted(k for k in set(s1) | set(s2) if s1.get(k) != s2.get(k))
         sys.exit("summaries differ in " + ", ".join(f"{k}: {s1.get(k)} vs {s2.get(k)}" for k in keys))
@@ -196,7 +198,7 @@ def bad_input(args):
         [truncated],
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
-        [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
+        [os.path.join(args.data, "sphere.vdb"), "--ply-format", "ascii"],  # not yet under MPI
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
     ]
@@ -207,7 +209,7 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
-        if "--hidden-features" not in extra:  # one process says the same
+        if "--ply-format" not in extra:  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
@@ -290,6 +292,8 @@ def main():
                 dims=(256, 256, 128))
     elif args.case == "field":  # SPEC §5 Tubey at 48^3: sampled by z-layers, with its truth node
         compare(args, "field", "field:tubey", ["--resolution", "48"], dims=(48, 48, 48))
+    elif args.case == "field_hidden":  # SPEC §4 on Tubey: refined and transition cells on brick faces
+        compare(args, "field_hidden", "field:tubey", [], dims=(32, 32, 32), hidden=True)
     elif args.case == "formula":
         compare(args, "formula", "formula:x*x+y*y+z*z-0.5+0.1*sin(9*x)", ["--resolution", "40", "--method", "cubic"],
                 dims=(40, 40, 40))
