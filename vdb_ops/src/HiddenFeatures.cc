@@ -13,6 +13,9 @@
 // cell has no refined edge (else that cell would be in T) and is cut exactly as marching cubes
 // cuts it. Every crossing is the start of one face segment and the end of another, so the
 // segments of a transition cell form closed loops.
+// By pieces (MPI ranks; SPEC §9, §10): addHiddenFeaturesByPieces runs the same passes on each
+// piece's blocks, the lists of refined cells and of fine keys shared, and the result's
+// sections cut into one run per piece (docs/mpi.md "Hidden features").
 #include "HiddenInternal.h"
 #include "isouq/Columns.h"
 
