@@ -522,6 +522,8 @@ HiddenPiece addHiddenFeaturesByPieces(const openvdb::FloatGrid& grid, const Mesh
         if (!edgeI || !edgeJ || !edgeK || !edgeAxis)
             OPENVDB_THROW(openvdb::ValueError,
                 "hidden features: the standard mesh needs provenance (edge_i edge_j edge_k edge_axis)");
+        if (standardBegin.size() != std::size_t(pieces) + 1)
+            OPENVDB_THROW(openvdb::ValueError, "hidden features: the standard mesh must be a BrickMesher piece");
         mc_internal::buildBlockSet(tree, blocks, threaded, mc_internal::BlockReach::Below);
         first = blocks.origins.size();
         for (std::size_t b = 0; b < blocks.origins.size(); ++b)
