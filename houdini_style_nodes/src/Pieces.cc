@@ -105,6 +105,40 @@ struct Sets {
     }
 };
 
+/// Rank @a rank's rows of a mesh by pieces (MeshPiece): one run per section, in section order.
+struct Runs {
+    std::vector<std::uint64_t> first, last; ///< per run, rows of the whole mesh
+    std::vector<std::size_t> local;        ///< per run, its first row in the piece
+    Runs(const std::vector<std::uint64_t>& begin, int rank, int size)
+    {
+        std::size_t rows = 0;
+        for (std::size_t r = std::size_t(rank); r + 1 < begin.size(); r += std::size_t(size)) {
+            first.push_back(begin[r]), last.push_back(begin[r + 1]), local.push_back(rows);
+            rows += std::size_t(begin[r + 1] - begin[r]);
+        }
+    }
+    /// The run holding row @a g of the whole mesh, or -1.
+    int runOf(std::uint64_t g) const
+    {
+        for (std::size_t r = 0; r < first.size(); ++r)
+            if (g >= first[r] && g < last[r]) return int(r);
+        return -1;
+    }
+    std::size_t localOf(std::uint64_t g, int run) const { return local[std::size_t(run)] + std::size_t(g - first[std::size_t(run)]); }
+    std::uint64_t globalOf(std::size_t l) const
+    {
+        std::size_t r = first.size() - 1;
+        while (local[r] > l) --r;
+        return first[r] + (l - local[r]);
+    }
+};
+
+/// The rank whose rows hold row @a g of the whole mesh (MeshPiece's begin).
+int ownerOfRow(const std::vector<std::uint64_t>& begin, std::uint64_t g, int size)
+{
+    return int(std::upper_bound(begin.begin(), begin.end(), g) - begin.begin() - 1) % size;
+}
+
 std::string lowerExtension(const std::string& path)
 {
     std::string ext;
@@ -118,18 +152,18 @@ std::string lowerExtension(const std::string& path)
 
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
 {
-    const std::string ext = lowerExtension(request.input);
-    if (ext != ".vdb" && ext != ".raw")
-        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files are "
-            "read by pieces; docs/mpi.md); run it in one process");
+    const bool dense = isDensePieceInput(request.input);
+    if (!dense && lowerExtension(request.input) != ".vdb")
+        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files, field: "
+            "and formula: inputs are read by pieces; docs/mpi.md); run it in one process");
     if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
     VolumeOnRanks out;
     auto piece = std::make_shared<VolumePiece>();
-    if (ext == ".raw") {
-        RawPiece raw = loadRawPiece(request, ranks, interrupter);
-        out.volume = std::make_shared<LoadedVolume>(std::move(raw.volume));
-        piece->plan = std::move(raw.plan);
-        piece->voxelsRead = raw.voxelsRead;
+    if (dense) { // z-layers per rank, then each rank's blocks and their halo (SPEC §9)
+        DensePiece layers = loadDensePiece(request, ranks, interrupter);
+        out.volume = std::make_shared<LoadedVolume>(std::move(layers.volume));
+        piece->plan = std::move(layers.plan);
+        piece->voxelsRead = layers.voxelsRead;
     } else {
         request.delayLoad = true;
         out.volume = std::make_shared<LoadedVolume>(loadVolume(request, interrupter));
@@ -205,37 +239,42 @@ std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::
     return piece;
 }
 
-nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
-{
-    const int rank = ranks.rank(), size = ranks.size();
-    const BrickPlan& plan = *where.plan;
-    const std::vector<std::uint64_t>& vertexBegin = where.vertexBegin;
-    const std::uint64_t v0 = vertexBegin[std::size_t(rank)], totalVertices = vertexBegin.back();
-    const std::size_t nLocal = piece.vertexCount();
+namespace {
 
-    // Ghosts: vertices of other ranks that this rank's triangles use, with their positions.
-    std::vector<std::uint32_t> ghosts;
+/// A rank's piece as its own small mesh: the vertices of other ranks that its triangles use
+/// (ghosts) appended, with their positions, and the triangles in local indices.
+struct LocalPiece {
+    Runs runs;
+    std::size_t nLocal = 0;
+    std::vector<std::uint32_t> ghosts; ///< ascending, rows of the whole mesh
+    Mesh mesh;
+    std::uint64_t globalOf(std::uint32_t l) const { return l < nLocal ? runs.globalOf(l) : ghosts[l - nLocal]; }
+};
+
+LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
+{
+    const int size = ranks.size();
+    LocalPiece out{Runs(where.vertexBegin, ranks.rank(), size), piece.vertexCount(), {}, {}};
+    const Runs& runs = out.runs;
+    const std::size_t nLocal = out.nLocal;
+    std::vector<std::uint32_t>& ghosts = out.ghosts;
     for (const openvdb::Vec3I& t : piece.triangles)
         for (int c = 0; c < 3; ++c)
-            if (t[c] < v0 || t[c] >= v0 + nLocal) ghosts.push_back(t[c]);
+            if (runs.runOf(std::uint32_t(t[c])) < 0) ghosts.push_back(t[c]);
     std::sort(ghosts.begin(), ghosts.end());
     ghosts.erase(std::unique(ghosts.begin(), ghosts.end()), ghosts.end());
-    const auto ownerOf = [&](std::uint64_t g) {
-        return int(std::upper_bound(vertexBegin.begin(), vertexBegin.end(), g) - vertexBegin.begin()) - 1;
-    };
     std::vector<Words> wanted(static_cast<std::size_t>(size));
-    for (std::uint32_t g : ghosts) wanted[std::size_t(ownerOf(g))].push_back(g);
+    for (std::uint32_t g : ghosts) wanted[std::size_t(ownerOfRow(where.vertexBegin, g, size))].push_back(g);
     const std::vector<Words> wantedHere = ranks.exchange(wanted);
     std::vector<Words> positions(static_cast<std::size_t>(size));
     for (int r = 0; r < size; ++r)
         for (std::uint64_t g : wantedHere[std::size_t(r)]) {
             std::uint64_t words[2] = {0, 0};
-            std::memcpy(words, piece.positions[std::size_t(g - v0)].asPointer(), 12);
+            std::memcpy(words, piece.positions[runs.localOf(g, runs.runOf(g))].asPointer(), 12);
             positions[std::size_t(r)].insert(positions[std::size_t(r)].end(), words, words + 2);
         }
     const std::vector<Words> got = ranks.exchange(positions);
-    // The piece as its own small mesh: ghosts appended, triangles in local indices.
-    Mesh local;
+    Mesh& local = out.mesh;
     local.positions.reserve(nLocal + ghosts.size());
     local.positions = piece.positions;
     local.positions.resize(nLocal + ghosts.size());
@@ -246,27 +285,40 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
                 got[std::size_t(r)].data() + 2 * i, 12);
         }
     const auto localIndex = [&](std::uint32_t g) -> std::uint32_t {
-        if (g >= v0 && g < v0 + nLocal) return std::uint32_t(g - v0);
+        if (const int run = runs.runOf(g); run >= 0) return std::uint32_t(runs.localOf(g, run));
         return std::uint32_t(nLocal + std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin()));
     };
     local.triangles = piece.triangles;
     for (openvdb::Vec3I& t : local.triangles)
-        for (int c = 0; c < 3; ++c) t[c] = localIndex(t[c]);
-    const auto globalIndex = [&](std::uint32_t l) -> std::uint64_t { return l < nLocal ? v0 + l : ghosts[l - nLocal]; };
+        for (int c = 0; c < 3; ++c) t[c] = localIndex(std::uint32_t(t[c]));
+    return out;
+}
 
-    // Shared vertices: those that triangles of another rank may use (an edge of a cell that
-    // another rank meshes). Only they can join components or edges across ranks.
-    std::vector<std::uint8_t> shared(local.positions.size(), 1);
+/// measureTopology's edges and components of the whole mesh, on rank 0 (zeros elsewhere): each
+/// rank counts its own, and rank 0 joins them over the shared vertices, those that triangles of
+/// another rank may use: a standard vertex on an edge of a cell that another rank meshes, a
+/// refined vertex (hidden = 1 on a subcell edge; a fan centre is its transition cell's only).
+MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const LocalPiece& local)
+{
+    const int rank = ranks.rank(), size = ranks.size();
+    const BrickPlan& plan = *where.plan;
+    const std::size_t nLocal = local.nLocal;
+    std::vector<std::uint8_t> shared(local.mesh.positions.size(), 1);
     {
         const auto* ei = piece.vertexAttributes.find<std::int32_t>(col::kEdgeI);
         const auto* ej = piece.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
         const auto* ek = piece.vertexAttributes.find<std::int32_t>(col::kEdgeK);
         const auto* ax = piece.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
+        const auto* hidden = piece.vertexAttributes.find<std::uint8_t>(col::kHidden);
         if (nLocal > 0 && (!ei || !ej || !ek || !ax))
             throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
         for (std::size_t v = 0; v < nLocal; ++v) {
             const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
             const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
+            if (hidden && (*hidden)[v]) {
+                shared[v] = a != 255;
+                continue;
+            }
             bool other = false;
             if ((e[a1] & 7) == 0 || (e[a2] & 7) == 0) // else its four cells are in its block
                 for (int d = 0; d < 4 && !other; ++d) {
@@ -279,9 +331,88 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
             shared[v] = other;
         }
     }
+    MeshTopologyStats topo;
+    std::vector<std::uint32_t> labels;
+    ranks.step([&] { topo = measureTopology(local.mesh, &labels, /*geometry=*/false); });
+    // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
+    Words componentPairs; // (global vertex, local component) of the shared vertices used
+    for (std::size_t f = 0; f < local.mesh.triangles.size(); ++f) {
+        const openvdb::Vec3I& t = local.mesh.triangles[f];
+        for (int c = 0; c < 3; ++c) {
+            const std::uint32_t a = std::uint32_t(t[c]), b = std::uint32_t(t[(c + 1) % 3]);
+            if (shared[a]) componentPairs.insert(componentPairs.end(), {local.globalOf(a), labels[f]});
+            if (a != b && shared[a] && shared[b])
+                sharedEdges.emplace_back(std::min(local.globalOf(a), local.globalOf(b)), std::max(local.globalOf(a), local.globalOf(b)));
+        }
+    }
+    std::sort(sharedEdges.begin(), sharedEdges.end());
+    Words edgeUses; // (lo, hi, uses)
+    std::size_t localBoundary = 0, localNonManifold = 0;
+    for (std::size_t i = 0; i < sharedEdges.size();) {
+        std::size_t j = i + 1;
+        while (j < sharedEdges.size() && sharedEdges[j] == sharedEdges[i]) ++j;
+        edgeUses.insert(edgeUses.end(), {sharedEdges[i].first, sharedEdges[i].second, std::uint64_t(j - i)});
+        localBoundary += j - i == 1;
+        localNonManifold += j - i > 2;
+        i = j;
+    }
+    const std::vector<Words> allTallies =
+        ranks.gather({topo.boundaryEdges - localBoundary, topo.nonManifoldEdges - localNonManifold, topo.components});
+    const std::vector<Words> allEdges = ranks.gather(edgeUses);
+    const std::vector<Words> allPairs = ranks.gather(componentPairs);
+    MeshTopologyStats whole;
+    if (rank != 0) return whole;
+
+    // Edges and components across the pieces' borders.
+    std::vector<std::uint64_t> componentBase(std::size_t(size) + 1, 0);
+    for (int r = 0; r < size; ++r) {
+        whole.boundaryEdges += allTallies[std::size_t(r)][0];
+        whole.nonManifoldEdges += allTallies[std::size_t(r)][1];
+        componentBase[std::size_t(r) + 1] = componentBase[std::size_t(r)] + allTallies[std::size_t(r)][2];
+    }
+    std::vector<std::array<std::uint64_t, 3>> edges;
+    for (const Words& w : allEdges)
+        for (std::size_t i = 0; i < w.size(); i += 3) edges.push_back({w[i], w[i + 1], w[i + 2]});
+    std::sort(edges.begin(), edges.end());
+    for (std::size_t i = 0; i < edges.size();) {
+        std::uint64_t uses = 0;
+        std::size_t j = i;
+        for (; j < edges.size() && edges[j][0] == edges[i][0] && edges[j][1] == edges[i][1]; ++j) uses += edges[j][2];
+        whole.boundaryEdges += uses == 1;
+        whole.nonManifoldEdges += uses > 2;
+        i = j;
+    }
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> pairs; // (global vertex, component node)
+    for (int r = 0; r < size; ++r)
+        for (std::size_t i = 0; i < allPairs[std::size_t(r)].size(); i += 2)
+            pairs.emplace_back(allPairs[std::size_t(r)][i], componentBase[std::size_t(r)] + allPairs[std::size_t(r)][i + 1]);
+    std::sort(pairs.begin(), pairs.end());
+    Sets sets(componentBase.back());
+    whole.components = componentBase.back();
+    for (std::size_t i = 1; i < pairs.size(); ++i)
+        if (pairs[i].first == pairs[i - 1].first && sets.join(pairs[i].second, pairs[i - 1].second)) --whole.components;
+    return whole;
+}
+
+} // namespace
+
+MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
+{
+    return topologyOnRanks(ranks, piece, where, localPiece(ranks, piece, where));
+}
+
+nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
+{
+    const std::uint64_t totalVertices = where.vertexBegin.back();
+    const LocalPiece local = localPiece(ranks, piece, where);
+    const std::size_t nLocal = local.nLocal;
 
     // Area, volume and statistics, carried from rank to rank in the one-process order, about
-    // the centre of the whole mesh's bounding box (as measureTopology).
+    // the centre of the whole mesh's bounding box (as measureTopology). One section of rows
+    // (a mesh node's piece): the ranks' triangles follow each other in the whole mesh's order.
+    if (where.triangleBegin.size() != std::size_t(ranks.size()) + 1)
+        throw std::invalid_argument("input 'mesh' is not a mesh node's piece (its sums would not be in the one-process order)");
     Words box(6);
     for (int c = 0; c < 3; ++c) {
         double lo = std::numeric_limits<double>::infinity(), hi = -lo;
@@ -312,8 +443,8 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     const Words sums = ranks.carry(start, [&](const Words& in) {
         GeometrySums geometry{doubleOf(in[0]), doubleOf(in[1]), std::size_t(in[2])};
         if (totalVertices > 0)
-            addTriangleGeometry(local.positions, local.triangles.data(), local.triangles.data() + local.triangles.size(),
-                centre, geometry);
+            addTriangleGeometry(local.mesh.positions, local.mesh.triangles.data(),
+                local.mesh.triangles.data() + local.mesh.triangles.size(), centre, geometry);
         Words out = {bitsOf(geometry.area), bitsOf(geometry.signedVolume), geometry.degenerate};
         for (std::size_t c = 0; c < columns.size(); ++c) {
             const std::uint64_t* w = in.data() + 3 + 5 * c;
@@ -326,75 +457,15 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
         return out;
     });
 
-    MeshTopologyStats topo;
-    std::vector<std::uint32_t> labels;
-    ranks.step([&] { topo = measureTopology(local, &labels, /*geometry=*/false); });
-    // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
-    std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
-    Words componentPairs; // (global vertex, local component) of the shared vertices used
-    for (std::size_t f = 0; f < local.triangles.size(); ++f) {
-        const openvdb::Vec3I& t = local.triangles[f];
-        for (int c = 0; c < 3; ++c) {
-            const std::uint32_t a = t[c], b = t[(c + 1) % 3];
-            if (shared[a]) componentPairs.insert(componentPairs.end(), {globalIndex(a), labels[f]});
-            if (a != b && shared[a] && shared[b])
-                sharedEdges.emplace_back(std::min(globalIndex(a), globalIndex(b)), std::max(globalIndex(a), globalIndex(b)));
-        }
-    }
-    std::sort(sharedEdges.begin(), sharedEdges.end());
-    Words edgeUses; // (lo, hi, uses)
-    std::size_t localBoundary = 0, localNonManifold = 0;
-    for (std::size_t i = 0; i < sharedEdges.size();) {
-        std::size_t j = i + 1;
-        while (j < sharedEdges.size() && sharedEdges[j] == sharedEdges[i]) ++j;
-        edgeUses.insert(edgeUses.end(), {sharedEdges[i].first, sharedEdges[i].second, std::uint64_t(j - i)});
-        localBoundary += j - i == 1;
-        localNonManifold += j - i > 2;
-        i = j;
-    }
-    const std::vector<Words> allTallies =
-        ranks.gather({topo.boundaryEdges - localBoundary, topo.nonManifoldEdges - localNonManifold, topo.components});
-    const std::vector<Words> allEdges = ranks.gather(edgeUses);
-    const std::vector<Words> allPairs = ranks.gather(componentPairs);
-    if (rank != 0) return nlohmann::json::object();
-
-    // Edges and components across the pieces' borders.
-    std::size_t boundary = 0, nonManifold = 0;
-    std::vector<std::uint64_t> componentBase(std::size_t(size) + 1, 0);
-    for (int r = 0; r < size; ++r) {
-        boundary += allTallies[std::size_t(r)][0];
-        nonManifold += allTallies[std::size_t(r)][1];
-        componentBase[std::size_t(r) + 1] = componentBase[std::size_t(r)] + allTallies[std::size_t(r)][2];
-    }
-    std::vector<std::array<std::uint64_t, 3>> edges;
-    for (const Words& w : allEdges)
-        for (std::size_t i = 0; i < w.size(); i += 3) edges.push_back({w[i], w[i + 1], w[i + 2]});
-    std::sort(edges.begin(), edges.end());
-    for (std::size_t i = 0; i < edges.size();) {
-        std::uint64_t uses = 0;
-        std::size_t j = i;
-        for (; j < edges.size() && edges[j][0] == edges[i][0] && edges[j][1] == edges[i][1]; ++j) uses += edges[j][2];
-        boundary += uses == 1;
-        nonManifold += uses > 2;
-        i = j;
-    }
-    std::vector<std::pair<std::uint64_t, std::uint64_t>> pairs; // (global vertex, component node)
-    for (int r = 0; r < size; ++r)
-        for (std::size_t i = 0; i < allPairs[std::size_t(r)].size(); i += 2)
-            pairs.emplace_back(allPairs[std::size_t(r)][i], componentBase[std::size_t(r)] + allPairs[std::size_t(r)][i + 1]);
-    std::sort(pairs.begin(), pairs.end());
-    Sets sets(componentBase.back());
-    std::size_t components = componentBase.back();
-    for (std::size_t i = 1; i < pairs.size(); ++i)
-        if (pairs[i].first == pairs[i - 1].first && sets.join(pairs[i].second, pairs[i - 1].second)) --components;
-
+    const MeshTopologyStats topo = topologyOnRanks(ranks, piece, where, local);
+    if (ranks.rank() != 0) return nlohmann::json::object();
     // The keys of summarizeMesh.
     nlohmann::json s;
     s["vertices"] = totalVertices;
     s["triangles"] = where.triangleBegin.back();
-    s["boundary_edges"] = boundary;
-    s["non_manifold_edges"] = nonManifold;
-    s["components"] = components;
+    s["boundary_edges"] = topo.boundaryEdges;
+    s["non_manifold_edges"] = topo.nonManifoldEdges;
+    s["components"] = topo.components;
     s["degenerate_triangles"] = std::size_t(sums[2]);
     s["area"] = doubleOf(sums[0]);
     s["enclosed_volume"] = std::abs(doubleOf(sums[1]));
@@ -453,12 +524,22 @@ void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& whe
         ranks.step([&] {
             if (!shared) throw IoError("cannot write " + path + ": MPI_File_open failed");
             if (rank == 0) shared->writeAt(0, header.data(), header.size(), path);
-            std::uint64_t vertexAt = headerBytes + where.vertexBegin[std::size_t(rank)] * vStride;
-            std::uint64_t faceAt = headerBytes + vertices * vStride + where.triangleBegin[std::size_t(rank)] * fStride;
+            // Rows go to the runs of the rank's sections in order (MeshPiece), whole rows a chunk.
+            const Runs vertexRuns(where.vertexBegin, rank, ranks.size()), faceRuns(where.triangleBegin, rank, ranks.size());
+            std::size_t vertexRow = 0, faceRow = 0;
             plyPieceRows(piece, vertices, [&](bool faces, const char* data, std::size_t bytes) {
-                std::uint64_t& at = faces ? faceAt : vertexAt;
-                shared->writeAt(at, data, bytes, path);
-                at += bytes;
+                const Runs& runs = faces ? faceRuns : vertexRuns;
+                std::size_t& row = faces ? faceRow : vertexRow;
+                const std::size_t stride = faces ? fStride : vStride;
+                const std::uint64_t base = headerBytes + (faces ? vertices * vStride : 0);
+                while (bytes > 0) {
+                    std::size_t run = runs.first.size() - 1;
+                    while (runs.local[run] > row || runs.first[run] == runs.last[run]) --run;
+                    const std::size_t rows = std::min<std::size_t>(bytes / stride,
+                        std::size_t(runs.last[run] - runs.first[run]) - (row - runs.local[run]));
+                    shared->writeAt(base + runs.globalOf(row) * stride, data, rows * stride, path);
+                    data += rows * stride, bytes -= rows * stride, row += rows;
+                }
             });
         });
     }

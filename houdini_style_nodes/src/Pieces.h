@@ -5,6 +5,7 @@
 #include "isouq/nodes/Node.h"
 
 #include <isouq/Bricks.h>
+#include <isouq/MeshTopology.h>
 #include <isouq/VolumeSources.h>
 
 namespace isouq::nodes::nodes_internal {
@@ -15,9 +16,9 @@ struct VolumeOnRanks {
 };
 
 /// loadVolume by pieces, the block order cut into one piece per rank: a .vdb with delayed
-/// loading (topology in memory, leaf values in the file until touched), a .raw by z-layers
-/// (loadRawPiece); then checkScalarVolume over the values of every rank's own leaves joined
-/// (with the Otsu histograms of a fog volume without an isovalue).
+/// loading (topology in memory, leaf values in the file until touched), a .raw scan, field: or
+/// formula: input by z-layers (loadDensePiece); then checkScalarVolume over the values of every
+/// rank's own leaves joined (with the Otsu histograms of a fog volume without an isovalue).
 /// @throw InputError as loadVolume and checkScalarVolume, on every rank.
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter);
 
@@ -30,6 +31,11 @@ std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::
 /// rank to rank in the one-process order (bit-equal), edges and components joined over the
 /// vertices that another rank's cells use.
 nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where);
+
+/// measureTopology's boundary and non-manifold edges and components of the whole mesh, on rank
+/// 0 (zeros elsewhere): each rank's own, joined over the vertices that another rank's triangles
+/// may use. Any mesh by pieces (a hidden-feature mesh's sections too).
+MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where);
 
 /// On rank 0, @a summary gets `ranks` (per rank: voxels_read, vertices, triangles, blocks,
 /// weight and its @a timings) and `timings_ms`, the slowest rank's per entry.

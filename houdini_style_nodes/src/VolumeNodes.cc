@@ -204,8 +204,21 @@ void cookHiddenFeatures(CookContext& ctx)
                  "read it with keep=crossing_or_hidden");
     HiddenFeatureStats stats;
     auto out = std::make_shared<MeshData>(standard.withoutMesh());
-    out->mesh = addHiddenFeatures(*volume.grid, standard.mesh, settingsOf(standard), hidden, &stats, ctx.interrupter);
-    const MeshTopologyStats before = measureTopology(standard.mesh), after = measureTopology(out->mesh);
+    MeshTopologyStats before, after;
+    if (ctx.ranks) { // this rank's runs of the hidden-feature mesh (docs/mpi.md); the statistics on rank 0
+        if (!standard.piece) throw std::invalid_argument("input 'mesh' is not a mesh made by pieces");
+        HiddenPiece piece = addHiddenFeaturesByPieces(*volume.grid, standard.mesh, standard.piece->vertexBegin,
+            *standard.piece->plan, settingsOf(standard), hidden, *ctx.ranks, ctx.interrupter);
+        stats = piece.stats;
+        out->mesh = std::move(piece.mesh);
+        out->piece = std::make_shared<MeshPiece>(MeshPiece{standard.piece->plan, std::move(piece.vertexBegin),
+            std::move(piece.triangleBegin), standard.piece->voxelsRead});
+        before = topologyOnRanks(*ctx.ranks, standard.mesh, *standard.piece);
+        after = topologyOnRanks(*ctx.ranks, out->mesh, *out->piece);
+    } else {
+        out->mesh = addHiddenFeatures(*volume.grid, standard.mesh, settingsOf(standard), hidden, &stats, ctx.interrupter);
+        before = measureTopology(standard.mesh), after = measureTopology(out->mesh);
+    }
     out->info["hidden"] = {{"cells_flagged", stats.cellsFlagged}, {"cells_total", stats.cellsTotal},
         {"fraction", stats.fraction()}, {"cells_refined", stats.cellsRefined},
         {"cells_transition", stats.cellsTransition}, {"components_before", before.components},
@@ -222,7 +235,17 @@ void cookTruth(CookContext& ctx)
     auto out = ctx.takeMesh("mesh");
     TruthSettings settings;
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
-    const TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
+    TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
+    if (ctx.ranks) { // each vertex on its own: a rank's piece gives its vertices' columns, the counts add up
+        const Words mine = {report.vertices, report.multiRootEdges, report.noRootEdges, report.failedProjections};
+        report = TruthReport();
+        for (const Words& w : ctx.ranks->allgather(mine)) {
+            report.vertices += std::size_t(w[0]);
+            report.multiRootEdges += std::size_t(w[1]);
+            report.noRootEdges += std::size_t(w[2]);
+            report.failedProjections += std::size_t(w[3]);
+        }
+    }
     if (report.failedProjections)
         ctx.warn(std::to_string(report.failedProjections) + " vertices: the projection on the true surface "
             "did not converge (dist_true is NaN there)");
@@ -315,7 +338,7 @@ void addVolumeNodes(std::vector<NodeType>& types)
         {{"volume", "volume", "The volume the mesh came from"},
             {"mesh", "mesh", "The standard mesh, straight from a mesh node"}},
         {{"mesh", "mesh", "The mesh with hidden features and the `hidden` block (components before and after)"}},
-        cookHiddenFeatures});
+        cookHiddenFeatures, /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"truth", "Truth",
         "Measured errors against the exact field of a field: or formula: input (SPEC §3): err_true_<method> on "
@@ -323,7 +346,7 @@ void addVolumeNodes(std::vector<NodeType>& types)
         {parm("per_method_distance", "Per-Method Distance", ParmType::Bool, false,
             "Also dist_true_<method> for every method's crossing")},
         {{"volume", "volume", "A field: or formula: volume"}, {"mesh", "mesh", "A mesh of it with provenance"}},
-        {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}}, cookTruth});
+        {{"mesh", "mesh", "The mesh with err_true_* and dist_true"}}, cookTruth, /*meshWriter=*/false, /*onRanks=*/true});
 }
 
 } // namespace isouq::nodes::nodes_internal

@@ -5,6 +5,8 @@
 
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
 raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
+field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 32^3 with
+--hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic),
 bad_input, interrupt.
 Exit 0 when the check holds; prints what differs otherwise.
 """
@@ -92,11 +94,11 @@ def plan_bound(path, grid, np_):
     return out, 512 * len(leaves)
 
 
-def raw_bound(path, np_):
-    """Per rank, the samples it may read of a raw scan: its z-layers of 8 slices, layers
-    [L p / P, L (p + 1) / P), and the 3 slices on either side that the stencils reach (SPEC §2),
-    inside the scan; and the whole scan's samples."""
-    x, y, z = (int(v) for v in os.path.basename(path).split("_")[-2].split("x"))
+def layers_bound(dims, np_):
+    """Per rank, the samples it may read of a raw scan or compute of a field (dims X, Y, Z): its
+    z-layers of 8 slices, layers [L p / P, L (p + 1) / P), and the 3 slices on either side that
+    the stencils reach (SPEC §2), inside the volume; and the whole volume's samples."""
+    x, y, z = dims
     layers = (z + 7) // 8
     out = []
     for p in range(np_):
@@ -105,26 +107,39 @@ def raw_bound(path, np_):
     return out, x * y * z
 
 
-def compare(args, name, inputs, extra, grid=None):
+def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
+    """One process against the ranks: the PLY (and with @hidden the --hidden-out PLY of
+    --hidden-features) byte for byte, the summary, the ranks block; @grid (a .vdb's) or @dims
+    (a raw scan's or a field's) bound what each rank reads."""
     work = os.path.join(args.work, f"{name}_np{args.np}")
     os.makedirs(work, exist_ok=True)
-    one_ply, one_json = os.path.join(work, "one.ply"), os.path.join(work, "one.json")
-    mpi_ply, mpi_json = os.path.join(work, "mpi.ply"), os.path.join(work, "mpi.json")
-    for f in (one_ply, one_json, mpi_ply, mpi_json):
+    outs = {who: {k: os.path.join(work, f"{who}{k}") for k in (".ply", ".json", "_hidden.ply")} for who in ("one", "mpi")}
+    for f in list(outs["one"].values()) + list(outs["mpi"].values()):
         if os.path.exists(f):
             os.remove(f)
-    one = run([args.cli, "mesh", inputs, "-o", one_ply, "--summary", one_json, "-q", "-j", "1"] + extra)
+
+    def command(who):
+        o = outs[who]
+        cmd = [args.cli, "mesh", inputs, "-o", o[".ply"], "--summary", o[".json"], "-q", "-j", "1"] + extra
+        return cmd + (["--hidden-features", "--hidden-out", o["_hidden.ply"]] if hidden else [])
+
+    one = run(command("one"))
     if one.returncode != 0:
         sys.exit(f"one process failed: {one.stderr}")
-    many = run(mpirun(args, args.np) + [args.cli, "mesh", inputs, "-o", mpi_ply, "--summary", mpi_json, "-q", "-j", "1"] + extra)
+    many = run(mpirun(args, args.np) + command("mpi"))
     if many.returncode != 0:
         sys.exit(f"mpirun -np {args.np} failed ({many.returncode}): {many.stderr}")
-    if many.stdout != one.stdout.replace(one_ply, mpi_ply).replace(one_json, mpi_json):
+    expected = one.stdout
+    for k in outs["one"]:
+        expected = expected.replace(outs["one"][k], outs["mpi"][k])
+    if many.stdout != expected:
         sys.exit(f"printed lines differ:\n{one.stdout}\n{many.stdout}")
-    a, b = open(one_ply, "rb").read(), open(mpi_ply, "rb").read()
-    if a != b:
-        at = next((i for i in range(min(len(a), len(b))) if a[i] != b[i]), min(len(a), len(b)))
-        sys.exit(f"PLY files differ ({len(a)} and {len(b)} bytes), first at byte {at}")
+    for k in (".ply", "_hidden.ply") if hidden else (".ply",):
+        a, b = open(outs["one"][k], "rb").read(), open(outs["mpi"][k], "rb").read()
+        if a != b:
+            at = next((i for i in range(min(len(a), len(b))) if a[i] != b[i]), min(len(a), len(b)))
+            sys.exit(f"{k} files differ ({len(a)} and {len(b)} bytes), first at byte {at}")
+    one_json, mpi_json = outs["one"][".json"], outs["mpi"][".json"]
     s1, s2 = json.load(open(one_json)), json.load(open(mpi_json))
     ranks = s2.get("ranks")
     if not isinstance(ranks, list) or len(ranks) != args.np:
@@ -133,6 +148,7 @@ def compare(args, name, inputs, extra, grid=None):
         for k in TIMINGS:
             s.pop(k, None)
         s.pop("output", None)
+        s.get("hidden", {}).pop("output", None)
     if s1 != s2:
         keys = sorted(k for k in set(s1) | set(s2) if s1.get(k) != s2.get(k))
         sys.exit("summaries differ in " + ", ".join(f"{k}: {s1.get(k)} vs {s2.get(k)}" for k in keys))
@@ -151,8 +167,8 @@ def compare(args, name, inputs, extra, grid=None):
                          f"plus halo: {p['bound']} of {total}")
         print(f"voxels read per rank: {reads}, bounds {[p['bound'] for p in plan]}, shares "
               f"{[p['share'] for p in plan]} of {total}")
-    if inputs.endswith(".raw"):
-        bounds, total = raw_bound(inputs, args.np)
+    if dims is not None:
+        bounds, total = layers_bound(dims, args.np)
         reads = [r["voxels_read"] for r in ranks]
         for r, b in zip(ranks, bounds):
             if r["voxels_read"] > b:
@@ -160,7 +176,7 @@ def compare(args, name, inputs, extra, grid=None):
         if args.np > 1 and sum(reads) >= args.np * total:
             sys.exit(f"every rank read the whole scan: {reads} of {total}")
         print(f"samples read per rank: {reads}, bounds {bounds} of {total}")
-    print(f"np {args.np}: {name}: byte-identical PLY ({len(a)} bytes), equal summary")
+    print(f"np {args.np}: {name}: byte-identical PLY{' files' if hidden else ''}, equal summary")
 
 
 def bad_input(args):
@@ -182,7 +198,7 @@ def bad_input(args):
         [truncated],
         [os.path.join(args.data, "sphere.vdb"), "--isovalue", "1e9"],
         [os.path.join(args.data, "smoke.vdb"), "--grid", "nothere"],
-        [os.path.join(args.data, "sphere.vdb"), "--hidden-features"],  # not yet under MPI
+        [os.path.join(args.data, "sphere.vdb"), "--ply-format", "ascii"],  # not yet under MPI
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
     ]
@@ -193,7 +209,7 @@ def bad_input(args):
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
-        if "--hidden-features" not in extra:  # one process says the same
+        if "--ply-format" not in extra:  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
@@ -267,11 +283,20 @@ def main():
     elif args.case == "fog_k":
         compare(args, "fog_k", smoke, ["--isovalue", "0.1", "--method", "cubic"], grid="density")
     elif args.case == "raw":
-        compare(args, "raw", os.path.join(args.data, "fuel_64x64x64_uint8.raw"), [])
+        compare(args, "raw", os.path.join(args.data, "fuel_64x64x64_uint8.raw"), [], dims=(64, 64, 64))
     elif args.case == "raw_float":
-        compare(args, "raw_float", os.path.join(args.data, "skull_64x64x64_float32.raw"), ["--method", "cubic"])
+        compare(args, "raw_float", os.path.join(args.data, "skull_64x64x64_float32.raw"), ["--method", "cubic"],
+                dims=(64, 64, 64))
     elif args.case == "raw_k":
-        compare(args, "raw_k", os.path.join(args.data, "engine_256x256x128_uint8.raw"), ["--isovalue", "71"])
+        compare(args, "raw_k", os.path.join(args.data, "engine_256x256x128_uint8.raw"), ["--isovalue", "71"],
+                dims=(256, 256, 128))
+    elif args.case == "field":  # SPEC §5 Tubey at 48^3: sampled by z-layers, with its truth node
+        compare(args, "field", "field:tubey", ["--resolution", "48"], dims=(48, 48, 48))
+    elif args.case == "field_hidden":  # SPEC §4 on Tubey: refined and transition cells on brick faces
+        compare(args, "field_hidden", "field:tubey", [], dims=(32, 32, 32), hidden=True)
+    elif args.case == "formula":
+        compare(args, "formula", "formula:x*x+y*y+z*z-0.5+0.1*sin(9*x)", ["--resolution", "40", "--method", "cubic"],
+                dims=(40, 40, 40))
     elif args.case == "bad_input":
         bad_input(args)
     elif args.case == "interrupt":

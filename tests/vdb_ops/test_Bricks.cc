@@ -169,7 +169,7 @@ TEST_CASE("Bricks: a plan balances the active voxels and covers the block order"
 
 TEST_CASE("Bricks: a plan of the topology alone equals the grid's plan", "[bricks][mpi]")
 {
-    // A raw scan read by pieces has only its leaves' value masks on every piece (loadRawPiece).
+    // A raw scan read by pieces has only its leaves' value masks on every piece (loadDensePiece).
     auto grid = sphere(30.0f);
     grid->tree().addTile(1, openvdb::Coord(200, 0, 0), 1.0f, true); // an active tile's shell too
     const openvdb::MaskTree topology(grid->tree(), false, openvdb::TopologyCopy());

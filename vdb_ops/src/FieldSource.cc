@@ -1,6 +1,8 @@
 // isouq: field:NAME (SPEC §5) and formula:EXPR (muParser) inputs, sampled on N^3 points.
 #include "SourcesInternal.h"
 
+#include "isouq/Bricks.h"
+
 #include <muParser.h>
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -9,6 +11,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <regex>
 
 namespace isouq {
@@ -58,24 +61,73 @@ private:
 };
 
 
-LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const VolumeRequest& request,
-    const std::string& defaultSource, openvdb::util::NullInterrupter* interrupter)
+std::optional<FieldInput> fieldInput(const VolumeRequest& request)
 {
-    if (n < 2) throw InputError("--resolution must be at least 2, got " + std::to_string(n));
-    if (n > std::numeric_limits<std::int32_t>::max() - kBlock) throw InputError("--resolution is too large");
-    FieldSlices source(*field, n);
-    checkLayersFit(source, request.input);
-    LoadedVolume volume = buildDense(source, request,
-        request.isovalue.value_or(float(field->isovalue)), interrupter);
-    volume.isovalueSource = request.isovalue ? "given" : defaultSource;
-    volume.grid->setName(field->name);
-    auto transform = openvdb::math::Transform::createLinearTransform(field->spacing(n));
-    transform->postTranslate(openvdb::Vec3d(field->lo));
+    const std::string& input = request.input;
+    FieldInput out;
+    if (input.rfind("field:", 0) == 0) {
+        const std::string name = input.substr(6);
+        const AnalyticField* field = findAnalyticField(name);
+        if (!field) {
+            std::string names;
+            for (const AnalyticField& f : analyticFields()) names += (names.empty() ? "" : ", ") + f.name;
+            throw InputError("unknown field '" + name + "'; fields: " + names);
+        }
+        out = {std::make_shared<AnalyticField>(*field), request.resolution.value_or(field->resolution), "SPEC §5 default"};
+    } else if (input.rfind("formula:", 0) == 0) {
+        const auto [lo, hi] = request.domain.value_or(std::make_pair(-1.0, 1.0));
+        out = {makeFormulaField(input.substr(8), lo, hi), request.resolution.value_or(64), "formula default"};
+    } else {
+        return std::nullopt;
+    }
+    if (out.n < 2) throw InputError("--resolution must be at least 2, got " + std::to_string(out.n));
+    if (out.n > std::numeric_limits<std::int32_t>::max() - kBlock) throw InputError("--resolution is too large");
+    return out;
+}
+
+namespace {
+
+/// The grid's name and transform, the source, the description and the truth of a field's volume.
+void finishField(LoadedVolume& volume, const FieldInput& input, const VolumeRequest& request)
+{
+    const AnalyticField& field = *input.field;
+    volume.isovalueSource = request.isovalue ? "given" : input.defaultSource;
+    volume.grid->setName(field.name);
+    auto transform = openvdb::math::Transform::createLinearTransform(field.spacing(input.n));
+    transform->postTranslate(openvdb::Vec3d(field.lo));
     volume.grid->setTransform(transform);
-    volume.description = field->name + " " + field->expression + " on [" + fmt(field->lo) + ", "
-        + fmt(field->hi) + "]^3: " + volume.description;
-    volume.truth = std::move(field);
+    volume.description = field.name + " " + field.expression + " on [" + fmt(field.lo) + ", " + fmt(field.hi)
+        + "]^3: " + volume.description;
+    volume.truth = input.field;
+}
+
+} // namespace
+
+LoadedVolume loadField(const FieldInput& input, const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+{
+    FieldSlices source(*input.field, input.n);
+    checkLayersFit(source, request.input);
+    LoadedVolume volume = buildDense(source, request, request.isovalue.value_or(float(input.field->isovalue)), interrupter);
+    finishField(volume, input, request);
     return volume;
+}
+
+DensePiece loadFieldPiece(const FieldInput& input, const VolumeRequest& request, const PieceComm& comm,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    FieldSlices source(*input.field, input.n);
+    checkLayersFit(source, request.input);
+    const float isovalue = request.isovalue.value_or(float(input.field->isovalue));
+    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
+    const int layers = (source.dims.z() + kBlock - 1) / kBlock;
+    SparseResult sparse;
+    comm.agree([&] {
+        sparse = sparsify(source, request.keep, isovalue, interrupter, firstLayerOf(layers, comm.rank(), comm.size()),
+            firstLayerOf(layers, comm.rank() + 1, comm.size()));
+    });
+    DensePiece piece = spreadLayers(std::move(sparse), source.dims, isovalue, comm);
+    finishField(piece.volume, input, request);
+    return piece;
 }
 
 

@@ -594,14 +594,16 @@ bool boundaryReveals(DetectWindow& w, int x, int y, int z, float* stencil, const
 
 Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blocks, float k,
     const std::optional<CoordBBox>& dataBounds, const HiddenFeatureSettings& hidden, bool threaded,
-    openvdb::util::NullInterrupter* interrupter)
+    openvdb::util::NullInterrupter* interrupter, std::size_t blockBegin, std::size_t blockEnd)
 {
+    blockEnd = std::min(blockEnd, blocks.origins.size());
+    blockBegin = std::min(blockBegin, blockEnd);
     const int m = hidden.subdivisions;
     struct BlockResult {
         std::size_t total = 0, flagged = 0;
         std::vector<Coord> refined;
     };
-    std::vector<BlockResult> results(blocks.origins.size());
+    std::vector<BlockResult> results(blockEnd - blockBegin);
     struct Scratch {
         DetectWindow window;
         TricubicWorkspace workspace;
@@ -612,8 +614,8 @@ Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blo
     for (int s = 0; s <= m; ++s) weights.push_back(cubicWeights(s, m));
     tbb::enumerable_thread_specific<Scratch> scratches(
         [&] { return Scratch{DetectWindow(tree, blocks.index), {}, {}, weights}; });
-    forEach(blocks.origins.size(), 4, threaded, interrupter, [&](std::size_t b) {
-        const Coord& origin = blocks.origins[b];
+    forEach(results.size(), 4, threaded, interrupter, [&](std::size_t b) {
+        const Coord& origin = blocks.origins[blockBegin + b];
         // Cells are counted only when all their corners are in the data box.
         if (dataBounds && !CoordBBox(dataBounds->min(), dataBounds->max().offsetBy(-1))
                               .hasOverlap(CoordBBox(origin, origin.offsetBy(kBlockDim - 1))))

@@ -176,14 +176,16 @@ constexpr std::array<std::array<int, 3>, 18> kFaceEdgeNeighbours = [] {
     return out;
 }();
 
-/// Detection (SPEC §4, HiddenDetect.cc): the cells to refine, in block order then x, y, z.
+/// Detection (SPEC §4, HiddenDetect.cc): the cells to refine, in block order then x, y, z, of
+/// the blocks [blockBegin, blockEnd) of the set (a piece's, SPEC §9; all by default).
 struct Detection {
     std::vector<Coord> refined;
     std::size_t cellsTotal = 0, cellsFlagged = 0;
 };
 Detection detectRefinedCells(const openvdb::FloatTree& tree, const BlockSet& blocks, float k,
     const std::optional<CoordBBox>& dataBounds, const HiddenFeatureSettings& hidden, bool threaded,
-    openvdb::util::NullInterrupter* interrupter);
+    openvdb::util::NullInterrupter* interrupter, std::size_t blockBegin = 0,
+    std::size_t blockEnd = std::numeric_limits<std::size_t>::max());
 
 /// The surface of the refined cells (subcell marching cubes) and of the transition cells (fan
 /// patches), HiddenPatches.cc: one Patch per chunk of cells, refined chunks first, each list in

@@ -174,8 +174,6 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
     return volume;
 }
 
-} // namespace sources_internal
-
 // ---- By pieces (SPEC §10 "MPI"; docs/mpi.md) -----------------------------------------------
 
 namespace {
@@ -184,49 +182,55 @@ using Words = PieceComm::Words;
 
 } // namespace
 
-RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
 {
-    namespace si = sources_internal;
-    using LeafT = openvdb::FloatTree::LeafNodeType;
-    using openvdb::Coord;
-    openvdb::initialize();
-    const si::RawScan scan = si::rawScan(request);
-    const si::RawSlabReader reader(scan.path, scan.dims, scan.type->type);
+    const RawScan scan = rawScan(request);
+    const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
     const Coord dims = scan.dims;
-    si::checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
-    const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + si::kBlock - 1) / si::kBlock;
-    const auto firstLayer = [&](int p) { return int(std::int64_t(layers) * p / pieces); };
-    const int l0 = firstLayer(piece), l1 = firstLayer(piece + 1);
-    const int z0 = std::min(l0 * si::kBlock, dims.z()), z1 = std::min(l1 * si::kBlock, dims.z());
+    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
+    const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + kBlock - 1) / kBlock;
+    const int l0 = firstLayerOf(layers, piece, pieces), l1 = firstLayerOf(layers, piece + 1, pieces);
+    const int z0 = std::min(l0 * kBlock, dims.z()), z1 = std::min(l1 * kBlock, dims.z());
 
     // Otsu's statistics: each piece its slices, joined in piece order.
-    const auto [isovalue, source] = si::rawIsovalue(request, scan.type->type, [&](const si::Range* range) {
-        si::RawStats part;
-        comm.agree([&] { part = si::rawStats(reader, z0, z1, range); });
+    const auto [isovalue, source] = rawIsovalue(request, scan.type->type, [&](const Range* range) {
+        RawStats part;
+        comm.agree([&] { part = rawStats(reader, z0, z1, range); });
         Words words = {bitsOf(part.range.min), bitsOf(part.range.max)};
         words.insert(words.end(), part.counts.begin(), part.counts.end());
-        si::RawStats whole;
+        RawStats whole;
         for (const Words& w : comm.allgather(words)) {
-            si::RawStats q;
+            RawStats q;
             q.range.min = doubleOf(w[0]), q.range.max = doubleOf(w[1]);
             q.counts.assign(w.begin() + 2, w.end());
             whole.add(q);
         }
         return whole;
     });
-    si::SparseResult sparse;
+    SparseResult sparse;
     const auto iso = isovalue; // a structured binding cannot be captured before C++20 (clang)
-    comm.agree([&] { sparse = si::sparsifyRaw(reader, l0, l1, request.keep, iso, interrupter); });
-    RawPiece out;
-    // sparsifyRaw reads kHalo slices on either side of the layers (the stencils' reach).
+    comm.agree([&] { sparse = sparsifyRaw(reader, l0, l1, request.keep, iso, interrupter); });
+    DensePiece out = spreadLayers(std::move(sparse), dims, isovalue, comm);
+    finishRaw(out.volume, scan, source);
+    return out;
+}
+
+DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue, const PieceComm& comm)
+{
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+    const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + kBlock - 1) / kBlock;
+    const int z0 = std::min(firstLayerOf(layers, piece, pieces) * kBlock, dims.z());
+    const int z1 = std::min(firstLayerOf(layers, piece + 1, pieces) * kBlock, dims.z());
+    DensePiece out;
+    // The sparsifiers read kHalo slices on either side of the layers (the stencils' reach).
     if (z0 < z1)
         out.voxelsRead = std::uint64_t(dims.x()) * std::uint64_t(dims.y()) *
-            std::uint64_t(std::min(z1 + si::kHalo, dims.z()) - std::max(z0 - si::kHalo, 0));
+            std::uint64_t(std::min(z1 + kHalo, dims.z()) - std::max(z0 - kHalo, 0));
 
-    // The whole scan's range and block counts, and the topology of every piece's leaves.
-    si::SparseResult whole;
+    // The whole volume's range and block counts, and the topology of every piece's leaves.
+    SparseResult whole;
     for (const Words& w : comm.allgather({bitsOf(sparse.range.min), bitsOf(sparse.range.max), sparse.blocks, sparse.kept})) {
-        si::Range r;
+        Range r;
         r.min = doubleOf(w[0]), r.max = doubleOf(w[1]);
         whole.range.add(r);
         whole.blocks += std::size_t(w[2]), whole.kept += std::size_t(w[3]);
@@ -249,22 +253,22 @@ RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openv
 
     // The blocks this piece's stencils reach: its own and those one block around them, inside
     // the data; each from the piece whose layers hold it.
-    const Coord blockCount((dims.x() + si::kBlock - 1) / si::kBlock, (dims.y() + si::kBlock - 1) / si::kBlock, layers);
+    const Coord blockCount((dims.x() + kBlock - 1) / kBlock, (dims.y() + kBlock - 1) / kBlock, layers);
     std::vector<Coord> wanted;
     for (std::size_t b = plan->begin(piece); b < plan->end(piece); ++b)
         for (int d = 0; d < 27; ++d) {
-            const Coord o = plan->origin(b).offsetBy(si::kBlock * (d % 3 - 1), si::kBlock * (d / 3 % 3 - 1), si::kBlock * (d / 9 - 1));
+            const Coord o = plan->origin(b).offsetBy(kBlock * (d % 3 - 1), kBlock * (d / 3 % 3 - 1), kBlock * (d / 9 - 1));
             bool inside = true;
-            for (int a = 0; a < 3; ++a) inside = inside && o[a] >= 0 && o[a] < si::kBlock * blockCount[a];
+            for (int a = 0; a < 3; ++a) inside = inside && o[a] >= 0 && o[a] < kBlock * blockCount[a];
             if (inside) wanted.push_back(o);
         }
     std::sort(wanted.begin(), wanted.end());
     wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
     std::vector<Words> requests(static_cast<std::size_t>(pieces));
     for (const Coord& o : wanted) {
-        const int layer = o.z() / si::kBlock;
+        const int layer = o.z() / kBlock;
         int owner = 0;
-        while (owner + 1 < pieces && firstLayer(owner + 1) <= layer) ++owner;
+        while (owner + 1 < pieces && firstLayerOf(layers, owner + 1, pieces) <= layer) ++owner;
         requests[std::size_t(owner)].insert(requests[std::size_t(owner)].end(),
             {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
     }
@@ -311,10 +315,9 @@ RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openv
         }
     }
     if (whole.range.min <= whole.range.max) whole.tree->root().setBackground(float(whole.range.min), false);
-    out.volume = si::denseVolume(std::move(whole), dims, isovalue);
-    si::finishRaw(out.volume, scan, source);
-    out.volume.input = request.input;
+    out.volume = denseVolume(std::move(whole), dims, isovalue);
     return out;
 }
 
+} // namespace sources_internal
 } // namespace isouq

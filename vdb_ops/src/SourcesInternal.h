@@ -15,6 +15,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -108,6 +109,11 @@ struct SparseResult {
     std::size_t blocks = 0, kept = 0;
 };
 
+/// Sparsifies the block layers [layer0, layer1) of @a source (slices 8 layer0 to 8 layer1, with
+/// kHalo slices read on either side; all layers when @a layer1 < 0) at @a k, as buildDense does.
+SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k, openvdb::util::NullInterrupter* interrupter,
+    int layer0 = 0, int layer1 = -1);
+
 /// buildDense's checks and grid for a SparseResult of a whole @a dims volume.
 LoadedVolume denseVolume(SparseResult&& sparse, const Coord& dims, float isovalue);
 
@@ -199,8 +205,36 @@ LoadedVolume loadVdb(const VolumeRequest& request);                             
 LoadedVolume sparseVolume(openvdb::FloatGrid::Ptr grid, const VolumeRequest& request, const std::string& what);
 /// A `memory:N` input (MemorySource.cc).
 LoadedVolume loadMemory(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter);
-/// A field: or formula: input sampled at n^3 points (FieldSource.cc).
-LoadedVolume loadField(std::shared_ptr<const AnalyticField> field, int n, const VolumeRequest& request,
-    const std::string& defaultSource, openvdb::util::NullInterrupter* interrupter);
+/// A field: or formula: INPUT: the field, its samples per axis and where its default isovalue
+/// comes from (FieldSource.cc).
+struct FieldInput {
+    std::shared_ptr<const AnalyticField> field;
+    int n = 0;
+    std::string defaultSource; ///< "SPEC §5 default", "formula default"
+};
+/// The field that @a request.input names, std::nullopt when it is neither field: nor formula:.
+/// @throw InputError for an unknown field, a formula that does not parse, a bad resolution.
+std::optional<FieldInput> fieldInput(const VolumeRequest& request);
+/// @a input sampled at n^3 points.
+LoadedVolume loadField(const FieldInput& input, const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter);
+
+// ---- By pieces (SPEC §9, §10 "MPI"; docs/mpi.md; loadDensePiece) --------------------------
+
+/// The first block layer of piece @a piece of @a pieces in a volume of @a layers layers of 8
+/// z-slices: piece p reads the layers [L p / P, L (p + 1) / P).
+inline int firstLayerOf(int layers, int piece, int pieces) { return int(std::int64_t(layers) * piece / pieces); }
+
+/// The rest of loadDensePiece once each piece has sparsified its layers (firstLayerOf) into
+/// @a sparse: the whole volume's range and block counts are joined, the topology of every
+/// piece's leaves gives the plan, and the leaves and tiles of this piece's blocks and of the
+/// blocks one block around them come from the pieces that made them (RawSource.cc). The
+/// caller names the volume (name, transform, description).
+/// @throw InputError as denseVolume, on every piece.
+DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue, const PieceComm& comm);
+
+/// loadRaw and loadField by pieces.
+DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter);
+DensePiece loadFieldPiece(const FieldInput& input, const VolumeRequest& request, const PieceComm& comm,
+    openvdb::util::NullInterrupter* interrupter);
 
 } // namespace isouq::sources_internal

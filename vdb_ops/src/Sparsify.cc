@@ -477,20 +477,23 @@ void checkLayersFit(const RawSlabReader& reader, int workers, const std::string&
     checkLayerBytes(reader.dims(), std::uint64_t(std::max(workers, 1)) * sparsifierBytes(reader.dims(), bytes), input);
 }
 
-/// Streams @a source in layers of 8 z-slices with a kHalo halo (a rolling window of at most
-/// 14 slices) and builds a tree whose leaves are the kept blocks (see KeepBlocks).
+/// Streams the block layers [layer0, layer1) of @a source (all of them when @a layer1 < 0) in
+/// layers of 8 z-slices with a kHalo halo (a rolling window of at most 14 slices) and builds a
+/// tree whose leaves are the kept blocks (see KeepBlocks).
 SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k,
-    openvdb::util::NullInterrupter* interrupter)
+    openvdb::util::NullInterrupter* interrupter, int layer0, int layer1)
 {
     LayerSparsifier<float> layers(source.dims, rule, k);
-    const int bz = layers.layers();
+    if (layer1 < 0) layer1 = layers.layers();
+    const int count = std::max(layer1 - layer0, 0);
     SparseResult result;
     result.tree = std::make_shared<FloatTree>(0.0f);
-    result.blocks = std::size_t(layers.blocksPerLayer()) * bz;
+    result.blocks = std::size_t(layers.blocksPerLayer()) * std::size_t(count);
     const LayerInserter insert{*result.tree, (source.dims.x() + kBlock - 1) / kBlock};
-    int bk = 0;
-    makeLayers(layers, 0, bz, /*threaded=*/true, [&](int z0, int z1, float* out) { source.read(z0, z1 - z0, out); },
-        insert, [&] { throwIfInterrupted(interrupter, int(100.0 * bk++ / bz)); }, result.range, result.kept);
+    int done = 0;
+    makeLayers(layers, layer0, layer1, /*threaded=*/true,
+        [&](int z0, int z1, float* out) { source.read(z0, z1 - z0, out); }, insert,
+        [&] { throwIfInterrupted(interrupter, int(100.0 * done++ / std::max(count, 1))); }, result.range, result.kept);
     if (result.range.min <= result.range.max) {
         result.tree->root().setBackground(float(result.range.min), /*updateChildNodes=*/false);
     }

@@ -38,22 +38,7 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
 {
     namespace si = sources_internal;
     const std::string& input = request.input;
-    if (input.rfind("field:", 0) == 0) {
-        const std::string name = input.substr(6);
-        const AnalyticField* field = findAnalyticField(name);
-        if (!field) {
-            std::string names;
-            for (const AnalyticField& f : analyticFields()) names += (names.empty() ? "" : ", ") + f.name;
-            throw InputError("unknown field '" + name + "'; fields: " + names);
-        }
-        return si::loadField(std::make_shared<AnalyticField>(*field),
-            request.resolution.value_or(field->resolution), request, "SPEC §5 default", interrupter);
-    }
-    if (input.rfind("formula:", 0) == 0) {
-        const auto [lo, hi] = request.domain.value_or(std::make_pair(-1.0, 1.0));
-        return si::loadField(makeFormulaField(input.substr(8), lo, hi),
-            request.resolution.value_or(64), request, "formula default", interrupter);
-    }
+    if (const std::optional<si::FieldInput> field = si::fieldInput(request)) return si::loadField(*field, request, interrupter);
     if (input.rfind("memory:", 0) == 0) return si::loadMemory(request, interrupter);
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
@@ -96,6 +81,26 @@ LoadedVolume loadVolume(const VolumeRequest& request, openvdb::util::NullInterru
     LoadedVolume volume = loadSource(request, interrupter);
     volume.input = request.input;
     return volume;
+}
+
+DensePiece loadDensePiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+{
+    namespace si = sources_internal;
+    openvdb::initialize();
+    DensePiece piece;
+    if (const std::optional<si::FieldInput> field = si::fieldInput(request))
+        piece = si::loadFieldPiece(*field, request, comm, interrupter);
+    else if (si::endsWith(request.input, ".raw"))
+        piece = si::loadRawPiece(request, comm, interrupter);
+    else
+        throw InputError("INPUT '" + request.input + "' is not read by layers (a .raw scan, field:NAME or formula:EXPR)");
+    piece.volume.input = request.input;
+    return piece;
+}
+
+bool isDensePieceInput(const std::string& input)
+{
+    return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0 || sources_internal::endsWith(input, ".raw");
 }
 
 } // namespace isouq

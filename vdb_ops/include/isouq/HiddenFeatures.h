@@ -16,6 +16,8 @@
 #include <openvdb/openvdb.h>
 
 #include <cstddef>
+#include <cstdint>
+#include <vector>
 
 namespace isouq {
 
@@ -70,5 +72,33 @@ Mesh extractWithHiddenFeatures(const openvdb::FloatGrid& grid, const MeshSetting
 Mesh addHiddenFeatures(const openvdb::FloatGrid& grid, const Mesh& standard,
     const MeshSettings& settings, const HiddenFeatureSettings& hidden,
     HiddenFeatureStats* stats = nullptr, openvdb::util::NullInterrupter* interrupter = nullptr);
+
+class BrickPlan; // Bricks.h
+class PieceComm; // Bricks.h
+
+/// A piece's share of addHiddenFeatures of the whole grid (SPEC §4, §9, §10 "MPI";
+/// docs/mpi.md): the whole mesh is three sections of vertices (the kept standard vertices, the
+/// refined vertices sorted by their subcell edge, the fan centres) and three of triangles (the
+/// kept standard ones, the refined cells', the transition cells'), in the one-process order, and
+/// the piece holds one run of each, its rows concatenated in section order.
+struct HiddenPiece {
+    Mesh mesh; ///< this piece's rows (columns as addHiddenFeatures'); indices are the whole mesh's
+    /// Section s of piece p is rows [begin[s P + p], begin[s P + p + 1]) of the whole mesh.
+    std::vector<std::uint64_t> vertexBegin, triangleBegin;
+    HiddenFeatureStats stats; ///< the whole grid's
+};
+
+/// addHiddenFeatures by the pieces of @a plan (collective over @a comm): @a standard is this
+/// piece's BrickMesher piece, whose vertices are rows [standardBegin[p], standardBegin[p + 1])
+/// of the whole standard mesh, and @a grid holds the values of its blocks and the blocks around
+/// them. Each piece detects the cells of its blocks, refines its refined cells and patches its
+/// transition cells (a transition cell of a brick face knows the refined cells across it: the
+/// refined cells of every piece are shared), and writes its share of the refined vertices (the
+/// pieces that use one send its crossing); the standard vertices that stay are those a kept
+/// triangle or a transition loop of any piece uses.
+/// @throw as addHiddenFeatures, on every piece.
+HiddenPiece addHiddenFeaturesByPieces(const openvdb::FloatGrid& grid, const Mesh& standard,
+    const std::vector<std::uint64_t>& standardBegin, const BrickPlan& plan, const MeshSettings& settings,
+    const HiddenFeatureSettings& hidden, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter = nullptr);
 
 } // namespace isouq

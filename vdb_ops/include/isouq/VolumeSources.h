@@ -118,24 +118,28 @@ LoadedVolume loadVolume(const VolumeRequest& request,
 class BrickPlan;  // Bricks.h
 class PieceComm; // Bricks.h
 
-/// This piece's share of a raw scan read by several processes (SPEC §9, §10 "MPI";
+/// This piece's share of a dense source read by several processes (SPEC §9, §10 "MPI";
 /// docs/mpi.md), the same as loadVolume's grid where this piece meshes.
-struct RawPiece {
+struct DensePiece {
     /// The grid this piece meshes: the leaves and tiles of its blocks of the plan and of the
     /// blocks around them (the stencils' halo), as loadVolume makes them; elsewhere empty.
     LoadedVolume volume;
-    std::shared_ptr<const BrickPlan> plan; ///< the whole scan's blocks cut into the pieces
-    std::uint64_t voxelsRead = 0;          ///< samples this piece read from the file
+    std::shared_ptr<const BrickPlan> plan; ///< the whole volume's blocks cut into the pieces
+    std::uint64_t voxelsRead = 0;          ///< samples this piece read from the file or computed
 };
 
-/// loadVolume of a raw scan by pieces (collective over @a comm): piece p reads its z-layers of
-/// 8 slices, [L p / P, L (p + 1) / P) of the L layers, and the 3 slices around them with
-/// positioned reads, and sparsifies them; the Otsu statistics, the ranges and the block counts
-/// are joined, the topology of every piece's leaves gives the plan, and the leaves and tiles
-/// around this piece's blocks come from the pieces that read them.
-/// @throw InputError as loadVolume, on every piece.
-RawPiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm,
+/// loadVolume of a dense source read by z-layers, a raw scan or a field: or formula: input, by
+/// pieces (collective over @a comm): piece p reads (a raw scan, with positioned reads) or
+/// samples (a field) its z-layers of 8 slices, [L p / P, L (p + 1) / P) of the L layers, and
+/// the 3 slices around them, and sparsifies them; a raw scan's Otsu statistics, the ranges and
+/// the block counts are joined, the topology of every piece's leaves gives the plan, and the
+/// leaves and tiles around this piece's blocks come from the pieces that made them.
+/// @throw InputError as loadVolume, on every piece, and for an INPUT isDensePieceInput refuses.
+DensePiece loadDensePiece(const VolumeRequest& request, const PieceComm& comm,
     openvdb::util::NullInterrupter* interrupter = nullptr);
+
+/// Whether loadDensePiece reads @a input: a .raw scan, field:NAME or formula:EXPR.
+bool isDensePieceInput(const std::string& input);
 
 /// A muParser field f(x, y, z) on [lo, hi]^3, default isovalue 0; thread safe (one parser per
 /// thread). @throw InputError naming the position of a parse error.

@@ -66,10 +66,14 @@ struct VolumePiece {
     std::optional<std::uint64_t> voxelsRead;
 };
 
-/// Where a rank's piece of a mesh sits in the whole mesh (the mesh node's output on ranks).
+/// Where a rank's piece of a mesh sits in the whole mesh (the mesh and hidden_features nodes'
+/// output on ranks). The whole mesh's vertices (and triangles) are sections of rows, each cut
+/// into one run per rank: rank r's run of section s is [begin[s P + r], begin[s P + r + 1]),
+/// and a piece holds its runs in section order. A mesh node's piece has one section; a
+/// hidden-feature mesh has three (HiddenPiece).
 struct MeshPiece {
     std::shared_ptr<const BrickPlan> plan;
-    std::vector<std::uint64_t> vertexBegin, triangleBegin; ///< per rank, then the totals
+    std::vector<std::uint64_t> vertexBegin, triangleBegin; ///< per section and rank, then the totals
     std::uint64_t voxelsRead = 0; ///< samples this rank read (VolumePiece)
 };
 
