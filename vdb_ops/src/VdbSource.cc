@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <set>
 
 namespace isouq {
@@ -119,6 +120,48 @@ void walkDelayedLoad(BoundedReader& r, std::uint32_t bytes)
     r.seek(end);
 }
 
+/// A transform as Transform::read reads it (file versions 219 on): the map's type name, then the
+/// map's own fixed-size numbers (math/Maps.h read()); a frustum holds its bounding box, taper,
+/// depth and a second (affine) map. An unknown type would make OpenVDB throw; a wrong length
+/// would shift everything after it.
+void walkTransform(BoundedReader& r, std::uint32_t version, bool nested = false)
+{
+    using namespace openvdb::math;
+    static const std::map<std::string, std::uint64_t> sMapBytes = {
+        {AffineMap::mapType(), 16 * 8}, {UnitaryMap::mapType(), 16 * 8},
+        {ScaleMap::mapType(), 5 * 24}, {UniformScaleMap::mapType(), 5 * 24},
+        {ScaleTranslateMap::mapType(), 6 * 24}, {UniformScaleTranslateMap::mapType(), 6 * 24},
+        {TranslationMap::mapType(), 24}};
+    const std::string type = r.string();
+    if (type == NonlinearFrustumMap::mapType() && !nested) {
+        r.skip(version < openvdb::OPENVDB_FILE_VERSION_FLOAT_FRUSTUM_BBOX ? 6 * 4 : 6 * 8); // bbox
+        r.skip(2 * 8);                                                                       // taper, depth
+        walkTransform(r, version, true);
+        return;
+    }
+    const auto bytes = sMapBytes.find(type);
+    if (bytes == sMapBytes.end()) r.fail("unknown transform '" + type.substr(0, 64) + "'");
+    r.skip(bytes->second);
+}
+
+/// The start of a float or double tree (Tree::readTopology, RootNode::readTopology): its buffer
+/// count, the background, then tile and child counts. OpenVDB allocates each root child (a
+/// 270 KB node) before reading it, whatever is left of the file, and only warns about a buffer
+/// count other than 1 and reads on (a 13 KB file took 42 s and 4.5 GB, found by fuzz_vdb). Each
+/// tile takes its origin, value and active byte; each child its origin and two 4096-byte masks.
+void walkRootTopology(BoundedReader& r, std::uint64_t valueBytes, std::uint64_t end, const std::string& grid)
+{
+    const std::int32_t buffers = r.pod<std::int32_t>();
+    if (buffers != 1) r.fail("grid '" + grid + "' has " + std::to_string(buffers) + " buffers (OpenVDB reads 1)");
+    r.skip(valueBytes); // background
+    const std::uint64_t tiles = r.pod<std::uint32_t>(), children = r.pod<std::uint32_t>();
+    const std::uint64_t least = tiles * (12 + valueBytes + 1) + children * (12 + 2 * 4096);
+    if (least > end - std::min(end, r.position())) {
+        r.fail("grid '" + grid + "' has " + std::to_string(tiles) + " root tiles and "
+            + std::to_string(children) + " root children, more than its bytes hold");
+    }
+}
+
 /// A metadata map as OpenVDB's MetaMap::readMeta reads it: an unsigned count, then name, type
 /// and value size per entry. A fixed-size type must announce its own size: OpenVDB reads
 /// sizeof(T) whatever the file says, and a mismatch would let it run on desynchronised.
@@ -149,10 +192,11 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
     }
     const std::uint32_t version = r.pod<std::uint32_t>();
     // OpenVDB only warns about a version it does not know and reads on unchecked, so the
-    // versions this walk knows are the ones read (218, from 2013, up to the library's own).
-    if (version < openvdb::OPENVDB_FILE_VERSION_BOOST_UUID || version > openvdb::OPENVDB_FILE_VERSION) {
+    // versions this walk knows are the ones read (219, from 2013, up to the library's own;
+    // 218's transforms were of an older kind).
+    if (version < openvdb::OPENVDB_FILE_VERSION_NEW_TRANSFORM || version > openvdb::OPENVDB_FILE_VERSION) {
         throw InputError("'" + path + "' has VDB file format version " + std::to_string(version)
-            + "; this build reads versions " + std::to_string(openvdb::OPENVDB_FILE_VERSION_BOOST_UUID)
+            + "; this build reads versions " + std::to_string(openvdb::OPENVDB_FILE_VERSION_NEW_TRANSFORM)
             + " to " + std::to_string(openvdb::OPENVDB_FILE_VERSION));
     }
     r.skip(8);                                  // library major, minor
@@ -179,8 +223,8 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
     if (grids < 0) r.fail("negative grid count");
     for (std::int32_t i = 0; i < grids; ++i) {
         const std::string name = r.string();
-        r.string();                             // type
-        r.string();                             // instance parent
+        const std::string type = r.string();
+        const bool instance = !r.string().empty(); // an instance shares its parent's tree
         const auto gridPos = r.pod<std::int64_t>(), blockPos = r.pod<std::int64_t>(),
                    endPos = r.pod<std::int64_t>();
         if (!(0 < gridPos && gridPos <= blockPos && blockPos <= endPos)) r.fail("bad offsets of a grid");
@@ -191,12 +235,18 @@ void checkVdbLayout(const std::string& path, std::uint64_t size)
         // The grid follows its descriptor, so the walk (and OpenVDB's) always moves on.
         if (std::uint64_t(gridPos) < r.position()) r.fail("grid '" +
             openvdb::io::GridDescriptor::nameAsString(name) + "' starts inside its descriptor");
-        // The grid's start, as Archive::readGrid reads it: compression flags, its metadata and
-        // the transform's type name (lengths and counts there are not checked by OpenVDB).
+        // The grid's start, as Archive::readGrid reads it: compression flags, its metadata, the
+        // transform and the root of its tree (lengths and counts there are not checked by OpenVDB).
         r.seek(std::uint64_t(gridPos));
         if (version >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) r.skip(4);
         walkMetadata(r);
-        r.string();
+        walkTransform(r, version);
+        // Only float and double grids are read (type names as GridDescriptor writes them).
+        const std::string tree = type.substr(0, type.rfind("_HalfFloat"));
+        if (!instance && (tree == openvdb::FloatTree::treeType() || tree == openvdb::DoubleTree::treeType())) {
+            walkRootTopology(r, tree == openvdb::FloatTree::treeType() ? 4 : 8, std::uint64_t(endPos),
+                openvdb::io::GridDescriptor::nameAsString(name));
+        }
         r.seek(std::uint64_t(endPos)); // the next descriptor follows this grid
     }
 }
