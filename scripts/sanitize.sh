@@ -38,8 +38,37 @@ address)
   ;;
 thread)
   build=$root/build-tsan
-  cmake -S . -B "$build" "${common[@]}" -DISOUQ_SANITIZE=thread >/dev/null
+  # TSan sees the happens-before edges of TBB's scheduler only in a TBB built with TSan, and
+  # Debian ships none: build Debian's own onetbb source (the version libtbb-dev's headers are)
+  # with TBB_SANITIZE=thread, once, into build-tsan/tbb/lib. The isouq binaries find it by
+  # DT_RPATH (which also serves libopenvdb's libtbb.so.12), so no LD_LIBRARY_PATH reaches the
+  # plain python3 that drives the tests (pyopenvdb there keeps Debian's libtbb).
+  tbb=$build/tbb
+  if [ ! -e "$tbb/lib/libtbb.so.12" ]; then
+    if ! grep -rqs '^Types:.*deb-src' /etc/apt/sources.list.d/ /etc/apt/sources.list; then
+      sed 's/^Types: deb$/Types: deb-src/' /etc/apt/sources.list.d/debian.sources \
+        > /etc/apt/sources.list.d/isouq-src.sources
+      apt-get update -qq
+    fi
+    dpkg-query -W -f='${Status}' dpkg-dev 2>/dev/null | grep -q "install ok installed" ||
+      DEBIAN_FRONTEND=noninteractive apt-get install -y -qq dpkg-dev >/dev/null
+    version=$(dpkg-query -W -f='${source:Version}' libtbb-dev)
+    rm -rf "$build/tbb-src" && mkdir -p "$build/tbb-src"
+    (cd "$build/tbb-src" && apt-get source -qq "onetbb=$version" >/dev/null)
+    src=$(find "$build/tbb-src" -mindepth 1 -maxdepth 1 -type d -name 'onetbb-*')
+    cmake -S "$src" -B "$build/tbb-build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      -DTBB_SANITIZE=thread -DTBB_TEST=OFF -DTBBMALLOC_BUILD=OFF -DTBB_STRICT=OFF \
+      -DTBB_DISABLE_HWLOC_AUTOMATIC_SEARCH=ON -DTBB_OUTPUT_DIR_BASE=lib >/dev/null
+    cmake --build "$build/tbb-build" -j"$jobs" --target tbb
+    mkdir -p "$tbb/lib" && cp -a "$build"/tbb-build/lib_*/libtbb.so* "$tbb/lib/"
+  fi
+  nm -D "$tbb/lib/libtbb.so.12" | grep -q __tsan_func_entry ||
+    { echo "isouq: sanitize: $tbb/lib/libtbb.so.12 is not built with TSan" >&2; exit 1; }
+  cmake -S . -B "$build" "${common[@]}" -DISOUQ_SANITIZE=thread \
+    "-DCMAKE_BUILD_RPATH=$tbb/lib" "-DCMAKE_EXE_LINKER_FLAGS=-Wl,--disable-new-dtags" >/dev/null
   cmake --build "$build" -j"$jobs" --target isouq test_MarchingCubes test_HiddenFeatures test_CliContract
+  ldd "$build/houdini_style_nodes/isouq" | grep -q "$tbb/lib/libtbb.so.12" ||
+    { echo "isouq: sanitize: the TSan isouq does not load $tbb/lib/libtbb.so.12" >&2; exit 1; }
   export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$root/scripts/sanitizers/tsan.supp"
   cd "$build"
   ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|HiddenFeatures|CliContract|^mpi_'

@@ -6,6 +6,10 @@
 
 #include <openvdb/openvdb.h>
 
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+
 #ifdef __SSE2__
 #include <emmintrin.h>
 #endif
@@ -85,23 +89,47 @@ struct BlockSet {
 /// 7 below (cells with an active corner, owned by the block of their lower corner).
 enum class BlockReach { Around, Below };
 
+/// Leaves per task when the block set is built in parallel; fewer leaves: one thread (the
+/// merge and the task start-up cost more than they save; issue 15, "Threads").
+constexpr std::size_t kParallelBlockSetLeaves = 4096;
+
+/// Marks in @a coarse the blocks around (or up to) leaves [begin, end) that hold an active voxel.
+template <typename LeafT>
+void markBlocks(const LeafT* const* begin, const LeafT* const* end, BlockIndexTree& coarse, BlockReach reach)
+{
+    openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
+    const int to = reach == BlockReach::Around ? 1 : 0;
+    for (; begin != end; ++begin) {
+        if ((*begin)->isEmpty()) continue;
+        const Coord b = (*begin)->origin() >> 3;
+        for (int dx = -1; dx <= to; ++dx)
+            for (int dy = -1; dy <= to; ++dy)
+                for (int dz = -1; dz <= to; ++dz) acc.setValueOn(b.offsetBy(dx, dy, dz), 0);
+    }
+}
+
 template <typename TreeT>
 void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReach reach = BlockReach::Around)
 {
+    using LeafT = typename TreeT::LeafNodeType;
     BlockIndexTree& coarse = blocks.index;
     // The 27 blocks around (or the 8 up to) each leaf, set one by one: on a small grid this is
     // several times cheaper than a tools::dilateActiveValues of the leaves' blocks, which it
-    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency").
-    {
-        openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
-        const int to = reach == BlockReach::Around ? 1 : 0;
-        for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
-            if (leaf->isEmpty()) continue;
-            const Coord b = leaf->origin() >> 3;
-            for (int dx = -1; dx <= to; ++dx)
-                for (int dy = -1; dy <= to; ++dy)
-                    for (int dz = -1; dz <= to; ++dz) acc.setValueOn(b.offsetBy(dx, dy, dz), 0);
-        }
+    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency"). Big grids mark
+    // runs of leaves in trees of their own, joined after (a union of a few coarse leaves each).
+    std::vector<const LeafT*> leaves;
+    leaves.reserve(tree.leafCount());
+    tree.getNodes(leaves);
+    const std::size_t grain = kParallelBlockSetLeaves;
+    if (threaded && leaves.size() >= 2 * grain) {
+        tbb::enumerable_thread_specific<BlockIndexTree> parts(-1);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), grain),
+            [&](const tbb::blocked_range<std::size_t>& r) {
+                markBlocks(leaves.data() + r.begin(), leaves.data() + r.end(), parts.local(), reach);
+            });
+        for (const BlockIndexTree& part : parts) coarse.topologyUnion(part);
+    } else {
+        markBlocks(leaves.data(), leaves.data() + leaves.size(), coarse, reach);
     }
     bool tiles = false;
     // Active tiles: only the blocks within one voxel of a tile's border can hold a crossing
@@ -118,14 +146,27 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
             coarse.fill(CoordBBox(lo.offsetBy(1), hi.offsetBy(-1)), -1, false);
     }
     if (tiles) coarse.voxelizeActiveTiles(threaded); // without tile fills there are no tiles
-    std::int32_t next = 0;
-    for (auto leaf = coarse.beginLeaf(); leaf; ++leaf) {
-        for (auto v = leaf->beginValueOn(); v; ++v) {
-            v.setValue(next++);
-            const Coord b = v.getCoord(); // * 8, not << 3: a left shift of a negative int is UB in C++17
-            blocks.origins.push_back(Coord(b[0] * 8, b[1] * 8, b[2] * 8));
+    // Number the blocks in the coarse tree's order (the same whatever the threads): each coarse
+    // leaf's first index is the count of blocks in the leaves before it.
+    std::vector<BlockIndexTree::LeafNodeType*> coarseLeaves;
+    coarse.getNodes(coarseLeaves);
+    std::vector<std::int32_t> first(coarseLeaves.size() + 1, 0);
+    for (std::size_t i = 0; i < coarseLeaves.size(); ++i)
+        first[i + 1] = first[i] + std::int32_t(coarseLeaves[i]->onVoxelCount());
+    blocks.origins.resize(std::size_t(first.back()));
+    auto number = [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            std::int32_t next = first[i];
+            for (auto v = coarseLeaves[i]->beginValueOn(); v; ++v) {
+                v.setValue(next);
+                const Coord b = v.getCoord(); // * 8, not << 3: a left shift of a negative int is UB in C++17
+                blocks.origins[std::size_t(next++)] = Coord(b[0] * 8, b[1] * 8, b[2] * 8);
+            }
         }
-    }
+    };
+    const tbb::blocked_range<std::size_t> all(0, coarseLeaves.size(), 16);
+    if (threaded && leaves.size() >= 2 * grain) tbb::parallel_for(all, number);
+    else number(all);
 }
 
 /// A block's values with a halo, and bit rows (one bit per z) of which voxels are inside
