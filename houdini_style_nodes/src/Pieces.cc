@@ -241,14 +241,34 @@ std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::
 
 namespace {
 
-/// A rank's piece as its own small mesh: the vertices of other ranks that its triangles use
-/// (ghosts) appended, with their positions, and the triangles in local indices.
+/// A rank's piece in its own vertex numbering, without a copy of its triangles or positions
+/// (issue 15: a rank's memory): its rows 0..nLocal-1, then the vertices of other ranks that its
+/// triangles use (ghosts), whose positions it fetches.
 struct LocalPiece {
     Runs runs;
     std::size_t nLocal = 0;
     std::vector<std::uint32_t> ghosts; ///< ascending, rows of the whole mesh
-    Mesh mesh;
-    std::uint64_t globalOf(std::uint32_t l) const { return l < nLocal ? runs.globalOf(l) : ghosts[l - nLocal]; }
+    std::vector<openvdb::Vec3s> ghostPositions;
+
+    std::size_t vertexCount() const { return nLocal + ghosts.size(); }
+    std::uint32_t localOf(std::uint32_t g) const
+    {
+        if (const int run = runs.runOf(g); run >= 0) return std::uint32_t(runs.localOf(g, run));
+        return std::uint32_t(nLocal + std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin()));
+    }
+    /// The piece's triangles (rows of the whole mesh) in local indices, for measureTopology.
+    TriangleChunks triangles(const Mesh& piece) const
+    {
+        return {vertexCount(), piece.triangles.size(), [this, &piece](std::size_t first, std::size_t count, openvdb::Vec3I* out) {
+            for (std::size_t f = 0; f < count; ++f)
+                for (int c = 0; c < 3; ++c) out[f][c] = localOf(std::uint32_t(piece.triangles[first + f][c]));
+        }};
+    }
+    const openvdb::Vec3s& position(const Mesh& piece, std::uint32_t g) const
+    {
+        if (const int run = runs.runOf(g); run >= 0) return piece.positions[runs.localOf(g, run)];
+        return ghostPositions[std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin())];
+    }
 };
 
 LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
@@ -256,7 +276,6 @@ LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& wh
     const int size = ranks.size();
     LocalPiece out{Runs(where.vertexBegin, ranks.rank(), size), piece.vertexCount(), {}, {}};
     const Runs& runs = out.runs;
-    const std::size_t nLocal = out.nLocal;
     std::vector<std::uint32_t>& ghosts = out.ghosts;
     for (const openvdb::Vec3I& t : piece.triangles)
         for (int c = 0; c < 3; ++c)
@@ -274,23 +293,12 @@ LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& wh
             positions[std::size_t(r)].insert(positions[std::size_t(r)].end(), words, words + 2);
         }
     const std::vector<Words> got = ranks.exchange(positions);
-    Mesh& local = out.mesh;
-    local.positions.reserve(nLocal + ghosts.size());
-    local.positions = piece.positions;
-    local.positions.resize(nLocal + ghosts.size());
+    out.ghostPositions.resize(ghosts.size());
     for (int r = 0; r < size; ++r)
         for (std::size_t i = 0; i < wanted[std::size_t(r)].size(); ++i) {
             const auto at = std::lower_bound(ghosts.begin(), ghosts.end(), std::uint32_t(wanted[std::size_t(r)][i]));
-            std::memcpy(local.positions[nLocal + std::size_t(at - ghosts.begin())].asPointer(),
-                got[std::size_t(r)].data() + 2 * i, 12);
+            std::memcpy(out.ghostPositions[std::size_t(at - ghosts.begin())].asPointer(), got[std::size_t(r)].data() + 2 * i, 12);
         }
-    const auto localIndex = [&](std::uint32_t g) -> std::uint32_t {
-        if (const int run = runs.runOf(g); run >= 0) return std::uint32_t(runs.localOf(g, run));
-        return std::uint32_t(nLocal + std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin()));
-    };
-    local.triangles = piece.triangles;
-    for (openvdb::Vec3I& t : local.triangles)
-        for (int c = 0; c < 3; ++c) t[c] = localIndex(std::uint32_t(t[c]));
     return out;
 }
 
@@ -303,7 +311,7 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
     const int rank = ranks.rank(), size = ranks.size();
     const BrickPlan& plan = *where.plan;
     const std::size_t nLocal = local.nLocal;
-    std::vector<std::uint8_t> shared(local.mesh.positions.size(), 1);
+    std::vector<std::uint8_t> shared(local.vertexCount(), 1); // ghosts: shared
     {
         const auto* ei = piece.vertexAttributes.find<std::int32_t>(col::kEdgeI);
         const auto* ej = piece.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
@@ -333,17 +341,17 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
     }
     MeshTopologyStats topo;
     std::vector<std::uint32_t> labels;
-    ranks.step([&] { topo = measureTopology(local.mesh, &labels, /*geometry=*/false); });
+    ranks.step([&] { topo = measureTopology(local.triangles(piece), &labels); });
     // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
     std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
     Words componentPairs; // (global vertex, local component) of the shared vertices used
-    for (std::size_t f = 0; f < local.mesh.triangles.size(); ++f) {
-        const openvdb::Vec3I& t = local.mesh.triangles[f];
+    for (std::size_t f = 0; f < piece.triangles.size(); ++f) {
+        const openvdb::Vec3I& t = piece.triangles[f]; // rows of the whole mesh
         for (int c = 0; c < 3; ++c) {
-            const std::uint32_t a = std::uint32_t(t[c]), b = std::uint32_t(t[(c + 1) % 3]);
-            if (shared[a]) componentPairs.insert(componentPairs.end(), {local.globalOf(a), labels[f]});
-            if (a != b && shared[a] && shared[b])
-                sharedEdges.emplace_back(std::min(local.globalOf(a), local.globalOf(b)), std::max(local.globalOf(a), local.globalOf(b)));
+            const std::uint64_t a = t[c], b = t[(c + 1) % 3];
+            const bool sharedA = shared[local.localOf(std::uint32_t(a))], sharedB = shared[local.localOf(std::uint32_t(b))];
+            if (sharedA) componentPairs.insert(componentPairs.end(), {a, labels[f]});
+            if (a != b && sharedA && sharedB) sharedEdges.emplace_back(std::min(a, b), std::max(a, b));
         }
     }
     std::sort(sharedEdges.begin(), sharedEdges.end());
@@ -443,8 +451,8 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     const Words sums = ranks.carry(start, [&](const Words& in) {
         GeometrySums geometry{doubleOf(in[0]), doubleOf(in[1]), std::size_t(in[2])};
         if (totalVertices > 0)
-            addTriangleGeometry(local.mesh.positions, local.mesh.triangles.data(),
-                local.mesh.triangles.data() + local.mesh.triangles.size(), centre, geometry);
+            addTriangleGeometry([&](std::uint32_t g) -> const openvdb::Vec3s& { return local.position(piece, g); },
+                piece.triangles.data(), piece.triangles.data() + piece.triangles.size(), centre, geometry);
         Words out = {bitsOf(geometry.area), bitsOf(geometry.signedVolume), geometry.degenerate};
         for (std::size_t c = 0; c < columns.size(); ++c) {
             const std::uint64_t* w = in.data() + 3 + 5 * c;

@@ -14,14 +14,46 @@
 namespace isouq {
 namespace topology_internal {
 
-void checkIndices(const Mesh& mesh)
+/// The triangles of a Mesh, or of a TriangleChunks (fetched a chunk at a time into a buffer):
+/// forEach(visit) calls visit(f, triangle) in order.
+struct MeshTriangles {
+    const Mesh& mesh;
+    std::size_t vertexCount() const { return mesh.vertexCount(); }
+    std::size_t count() const { return mesh.triangleCount(); }
+    template <typename Visit>
+    void forEach(Visit&& visit) const
+    {
+        for (std::size_t f = 0; f < mesh.triangles.size(); ++f) visit(f, mesh.triangles[f]);
+    }
+};
+
+struct ChunkedTriangles {
+    const TriangleChunks& chunks;
+    std::size_t vertexCount() const { return chunks.vertexCount; }
+    std::size_t count() const { return chunks.triangleCount; }
+    template <typename Visit>
+    void forEach(Visit&& visit) const
+    {
+        constexpr std::size_t kChunk = 4096;
+        std::vector<openvdb::Vec3I> buffer(std::min(kChunk, chunks.triangleCount));
+        for (std::size_t first = 0; first < chunks.triangleCount; first += kChunk) {
+            const std::size_t n = std::min(kChunk, chunks.triangleCount - first);
+            chunks.fetch(first, n, buffer.data());
+            for (std::size_t i = 0; i < n; ++i) visit(first + i, buffer[i]);
+        }
+    }
+};
+
+template <typename Triangles>
+void checkIndices(const Triangles& triangles)
 {
-    const std::size_t nv = mesh.vertexCount();
-    for (std::size_t f = 0; f < mesh.triangleCount(); ++f)
+    const std::size_t nv = triangles.vertexCount();
+    triangles.forEach([&](std::size_t f, const openvdb::Vec3I& t) {
         for (int c = 0; c < 3; ++c)
-            if (mesh.triangles[f][c] >= nv)
+            if (t[c] >= nv)
                 throw std::invalid_argument("triangle " + std::to_string(f) + " names vertex " +
-                    std::to_string(mesh.triangles[f][c]) + " of " + std::to_string(nv));
+                    std::to_string(t[c]) + " of " + std::to_string(nv));
+    });
 }
 
 /// Sorts the upper ends of the edges that share one lower end: short runs (the usual 2-4
@@ -38,16 +70,18 @@ void sortBucket(std::uint32_t* first, std::uint32_t* last)
 
 /// Counts edges by use: each undirected edge (a, b), a < b, goes into the bucket of a as b
 /// (a counting sort on a); sorting each small bucket makes equal edges adjacent runs.
-void countEdges(const Mesh& mesh, MeshTopologyStats& stats)
+template <typename Triangles>
+void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
 {
-    const std::size_t nv = mesh.vertexCount();
+    const std::size_t nv = triangles.vertexCount();
     std::vector<std::size_t> start(nv + 1, 0);
     auto forEachEdge = [&](auto&& visit) {
-        for (const openvdb::Vec3I& t : mesh.triangles)
+        triangles.forEach([&](std::size_t, const openvdb::Vec3I& t) {
             for (int c = 0; c < 3; ++c) {
                 const std::uint32_t a = t[c], b = t[(c + 1) % 3];
                 if (a != b) visit(std::min(a, b), std::max(a, b));
             }
+        });
     };
     forEachEdge([&](std::uint32_t lo, std::uint32_t) { ++start[lo + 1]; });
     for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
@@ -86,7 +120,8 @@ void measureGeometry(const Mesh& mesh, MeshTopologyStats& stats)
         }
     for (int c = 0; c < 3; ++c) centre[c] = 0.5 * (lo[c] + hi[c]);
     GeometrySums sums;
-    addTriangleGeometry(mesh.positions, mesh.triangles.data(), mesh.triangles.data() + mesh.triangles.size(), centre, sums);
+    addTriangleGeometry([&](std::uint32_t v) -> const openvdb::Vec3s& { return mesh.positions[v]; },
+        mesh.triangles.data(), mesh.triangles.data() + mesh.triangles.size(), centre, sums);
     stats.area = sums.area;
     stats.enclosedVolume = std::abs(sums.signedVolume);
     stats.degenerateTriangles = sums.degenerate;
@@ -116,72 +151,62 @@ private:
     std::vector<std::uint32_t> mParent;
 };
 
-std::vector<std::uint32_t> labelTriangles(const Mesh& mesh, std::size_t& components)
+template <typename Triangles>
+std::vector<std::uint32_t> labelTriangles(const Triangles& triangles, std::size_t& components)
 {
-    VertexSets sets(mesh.vertexCount());
-    for (const openvdb::Vec3I& t : mesh.triangles) {
+    VertexSets sets(triangles.vertexCount());
+    triangles.forEach([&](std::size_t, const openvdb::Vec3I& t) {
         sets.join(t[0], t[1]);
         sets.join(t[0], t[2]);
-    }
+    });
     constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-    std::vector<std::uint32_t> labelOfRoot(mesh.vertexCount(), kNone);
-    std::vector<std::uint32_t> labels(mesh.triangleCount());
+    std::vector<std::uint32_t> labelOfRoot(triangles.vertexCount(), kNone);
+    std::vector<std::uint32_t> labels(triangles.count());
     components = 0;
-    for (std::size_t f = 0; f < labels.size(); ++f) {
-        std::uint32_t& label = labelOfRoot[sets.find(mesh.triangles[f][0])];
+    triangles.forEach([&](std::size_t f, const openvdb::Vec3I& t) {
+        std::uint32_t& label = labelOfRoot[sets.find(t[0])];
         if (label == kNone) label = static_cast<std::uint32_t>(components++);
         labels[f] = label;
-    }
+    });
     return labels;
 }
 
-} // namespace topology_internal
-
-void addTriangleGeometry(const std::vector<openvdb::Vec3s>& positions, const openvdb::Vec3I* first,
-    const openvdb::Vec3I* last, const std::array<double, 3>& centre, GeometrySums& sums)
+/// Edges and components, and the geometry when @a mesh is given.
+template <typename Triangles>
+MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>* labels, const Mesh* mesh)
 {
-    double area = sums.area, volume = sums.signedVolume;
-    for (; first != last; ++first) {
-        const openvdb::Vec3I& t = *first;
-        double q[3][3];
-        for (int v = 0; v < 3; ++v)
-            for (int c = 0; c < 3; ++c) q[v][c] = double(positions[t[v]][c]) - centre[c];
-        const double e1[3] = {q[1][0] - q[0][0], q[1][1] - q[0][1], q[1][2] - q[0][2]};
-        const double e2[3] = {q[2][0] - q[0][0], q[2][1] - q[0][1], q[2][2] - q[0][2]};
-        const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0]};
-        const double twiceArea = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-        area += 0.5 * twiceArea;
-        // q0 . (q1 x q2) = q0 . (e1 x e2), so the normal is reused.
-        volume += (q[0][0] * n[0] + q[0][1] * n[1] + q[0][2] * n[2]) / 6.0;
-        if (twiceArea == 0 || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++sums.degenerate;
-    }
-    sums.area = area;
-    sums.signedVolume = volume;
+    checkIndices(triangles);
+    MeshTopologyStats stats;
+    // Three independent passes writing disjoint fields of stats.
+    tbb::parallel_invoke([&] { countEdges(triangles, stats); },
+        [&] {
+            std::vector<std::uint32_t> l = labelTriangles(triangles, stats.components);
+            if (labels) *labels = std::move(l);
+        },
+        [&] { if (mesh) measureGeometry(*mesh, stats); });
+    return stats;
 }
+
+} // namespace topology_internal
 
 MeshTopologyStats measureTopology(const Mesh& mesh) { return measureTopology(mesh, nullptr, true); }
 
 MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry)
 {
-    using namespace topology_internal;
-    checkIndices(mesh);
-    MeshTopologyStats stats;
-    // Three independent passes writing disjoint fields of stats.
-    tbb::parallel_invoke([&] { countEdges(mesh, stats); },
-        [&] {
-            std::vector<std::uint32_t> l = labelTriangles(mesh, stats.components);
-            if (labels) *labels = std::move(l);
-        },
-        [&] { if (geometry) measureGeometry(mesh, stats); });
-    return stats;
+    return topology_internal::measure(topology_internal::MeshTriangles{mesh}, labels, geometry ? &mesh : nullptr);
+}
+
+MeshTopologyStats measureTopology(const TriangleChunks& triangles, std::vector<std::uint32_t>* labels)
+{
+    return topology_internal::measure(topology_internal::ChunkedTriangles{triangles}, labels, nullptr);
 }
 
 std::vector<std::uint32_t> componentLabels(const Mesh& mesh)
 {
-    topology_internal::checkIndices(mesh);
+    const topology_internal::MeshTriangles triangles{mesh};
+    topology_internal::checkIndices(triangles);
     std::size_t components = 0;
-    return topology_internal::labelTriangles(mesh, components);
+    return topology_internal::labelTriangles(triangles, components);
 }
 
 std::vector<std::size_t> componentTriangleCounts(const std::vector<std::uint32_t>& labels)

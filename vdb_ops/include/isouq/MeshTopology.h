@@ -5,8 +5,10 @@
 #include "isouq/MeshAttributes.h"
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace isouq {
@@ -40,8 +42,43 @@ struct GeometrySums {
     double area = 0, signedVolume = 0;
     std::size_t degenerate = 0;
 };
-void addTriangleGeometry(const std::vector<openvdb::Vec3s>& positions, const openvdb::Vec3I* first,
-    const openvdb::Vec3I* last, const std::array<double, 3>& centre, GeometrySums& sums);
+/// @a position(v) is vertex v's position.
+template <typename PositionOf>
+void addTriangleGeometry(const PositionOf& position, const openvdb::Vec3I* first, const openvdb::Vec3I* last,
+    const std::array<double, 3>& centre, GeometrySums& sums)
+{
+    double area = sums.area, volume = sums.signedVolume;
+    for (; first != last; ++first) {
+        const openvdb::Vec3I& t = *first;
+        double q[3][3];
+        for (int v = 0; v < 3; ++v) {
+            const openvdb::Vec3s& p = position(std::uint32_t(t[v]));
+            for (int c = 0; c < 3; ++c) q[v][c] = double(p[c]) - centre[c];
+        }
+        const double e1[3] = {q[1][0] - q[0][0], q[1][1] - q[0][1], q[1][2] - q[0][2]};
+        const double e2[3] = {q[2][0] - q[0][0], q[2][1] - q[0][1], q[2][2] - q[0][2]};
+        const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0]};
+        const double twiceArea = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        area += 0.5 * twiceArea;
+        // q0 . (q1 x q2) = q0 . (e1 x e2), so the normal is reused.
+        volume += (q[0][0] * n[0] + q[0][1] * n[1] + q[0][2] * n[2]) / 6.0;
+        if (twiceArea == 0 || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++sums.degenerate;
+    }
+    sums.area = area;
+    sums.signedVolume = volume;
+}
+
+/// Triangles that are not stored as one array of a Mesh (a rank's piece in its own vertex
+/// numbering, SPEC §10 "MPI"): fetch(first, count, out) writes triangles first..first+count-1
+/// with corners in 0..vertexCount-1.
+struct TriangleChunks {
+    std::size_t vertexCount = 0, triangleCount = 0;
+    std::function<void(std::size_t first, std::size_t count, openvdb::Vec3I* out)> fetch;
+};
+
+/// measureTopology(mesh, labels, false) of such triangles: edges and components, no geometry.
+MeshTopologyStats measureTopology(const TriangleChunks& triangles, std::vector<std::uint32_t>* labels);
 
 /// Per triangle, its component in 0..C-1, numbered in the order of their first triangle.
 /// Components are vertex connectivity: two triangles are connected when they share a vertex
