@@ -267,6 +267,7 @@ LoadedVolume loadVdb(const VolumeRequest& request)
     LoadedVolume volume;
     try {
         openvdb::io::File file(path);
+        if (request.delayLoad) file.setCopyMaxBytes(0);
         file.open(request.delayLoad);
         const openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
         std::string chosen;

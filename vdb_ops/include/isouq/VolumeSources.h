@@ -57,7 +57,9 @@ struct VolumeRequest {
     KeepBlocks keep = KeepBlocks::Crossing;   ///< dense sources only
     /// .vdb: leave the leaf buffers in the file until they are touched (OpenVDB's delayed
     /// loading), and a fog volume's default isovalue to the caller (isovalue NaN): an MPI rank
-    /// reads only its pieces and their halo (SPEC §10 "MPI"; docs/mpi.md).
+    /// reads only its pieces and their halo (SPEC §10 "MPI"; docs/mpi.md). The file is mapped
+    /// as it is, without OpenVDB's private copy of files under 500 MB (which made every rank
+    /// copy the whole file first): it must not change while isouq reads it.
     bool delayLoad = false;
     /// .vdb: a named grid that is absent gives an empty grid instead of an error (a frame of a
     /// simulation cache where the grid is empty; SPEC §10 "Sequences").
