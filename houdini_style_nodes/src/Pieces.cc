@@ -12,6 +12,8 @@
 #include <isouq/MeshIO.h>
 #include <isouq/MeshTopology.h>
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -302,6 +304,48 @@ LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& wh
     return out;
 }
 
+/// Sums over rows [first, last) of the whole mesh's n rows (this rank's), in the chunks of
+/// kSumRows rows of the one-process order (MeshTopology.h): add(state, from, to) folds rows
+/// [from, to) into state, in order. The chunks inside the rank are summed on its threads; only
+/// the chunk its first row falls in continues the state carried from the rank before. Returns,
+/// on rank 0, every chunk's sums in chunk order (elsewhere nothing).
+std::vector<Words> chunkSumsOnRanks(const Ranks& ranks, std::uint64_t first, std::uint64_t last, std::uint64_t n,
+    const Words& zero, const std::function<void(Words&, std::uint64_t, std::uint64_t)>& add)
+{
+    const std::uint64_t k = kSumRows;
+    const auto ends = [&](std::uint64_t row) { return row % k == 0 || row == n; }; // a chunk ends before row
+    const bool carried = first < last && first % k != 0;
+    const std::uint64_t headEnd = carried ? std::min(last, (first / k + 1) * k) : first;
+    // The chunks (or their starts) from headEnd on need nothing from other ranks.
+    std::vector<std::uint64_t> cuts{headEnd};
+    while (cuts.back() < last) cuts.push_back(std::min(last, (cuts.back() / k + 1) * k));
+    std::vector<Words> own(cuts.size() - 1, zero);
+    ranks.step([&] {
+        tbb::parallel_for(std::size_t(0), own.size(), [&](std::size_t i) { add(own[i], cuts[i], cuts[i + 1]); });
+    });
+    Words done; // (chunk, sums...) of the chunks that end in this rank, in order
+    const auto finish = [&](std::uint64_t chunk, const Words& sums) {
+        done.push_back(chunk);
+        done.insert(done.end(), sums.begin(), sums.end());
+    };
+    const bool tailOpen = !own.empty() && !ends(last);
+    ranks.carry(zero, [&](const Words& in) {
+        if (first == last) return in; // no rows here: the open chunk goes on
+        if (carried) {
+            Words head = in;
+            add(head, first, headEnd);
+            if (!ends(headEnd)) return head; // the rank's rows lie inside one chunk
+            finish(first / k, head);
+        }
+        for (std::size_t i = 0; i + (tailOpen ? 1 : 0) < own.size(); ++i) finish(cuts[i] / k, own[i]);
+        return tailOpen ? own.back() : zero;
+    });
+    std::vector<Words> chunks;
+    for (const Words& w : ranks.gather(done))
+        for (std::size_t i = 0; i < w.size(); i += 1 + zero.size()) chunks.emplace_back(w.begin() + std::ptrdiff_t(i) + 1, w.begin() + std::ptrdiff_t(i + 1 + zero.size()));
+    return chunks;
+}
+
 /// measureTopology's edges and components of the whole mesh, on rank 0 (zeros elsewhere): each
 /// rank counts its own, and rank 0 joins them over the shared vertices, those that triangles of
 /// another rank may use: a standard vertex on an edge of a cell that another rank meshes, a
@@ -416,9 +460,9 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     const LocalPiece local = localPiece(ranks, piece, where);
     const std::size_t nLocal = local.nLocal;
 
-    // Area, volume and statistics, carried from rank to rank in the one-process order, about
-    // the centre of the whole mesh's bounding box (as measureTopology). One section of rows
-    // (a mesh node's piece): the ranks' triangles follow each other in the whole mesh's order.
+    // Area, volume and statistics in the one-process order, about the centre of the whole mesh's
+    // bounding box (as measureTopology). One section of rows (a mesh node's piece): the ranks'
+    // rows follow each other in the whole mesh's order.
     if (where.triangleBegin.size() != std::size_t(ranks.size()) + 1)
         throw std::invalid_argument("input 'mesh' is not a mesh node's piece (its sums would not be in the one-process order)");
     Words box(6);
@@ -443,27 +487,42 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
             columns.push_back(column);
             names.emplace_back(c.name);
         }
-    Words start(3 + 5 * columns.size(), 0);
-    for (std::size_t c = 0; c < columns.size(); ++c) { // an empty StatisticsSums
-        const StatisticsSums empty;
-        start[3 + 5 * c] = bitsOf(empty.lo), start[4 + 5 * c] = bitsOf(empty.hi);
+    // Area and volume by chunks of triangle rows, the statistics by chunks of vertex rows, each
+    // chunk's sums bit-equal to one process's, joined in chunk order on rank 0.
+    const int rank = ranks.rank();
+    const std::uint64_t v0 = where.vertexBegin[std::size_t(rank)], t0 = where.triangleBegin[std::size_t(rank)];
+    const std::vector<Words> geometryChunks = chunkSumsOnRanks(ranks, t0, where.triangleBegin[std::size_t(rank) + 1],
+        where.triangleBegin.back(), Words(3, 0), [&](Words& w, std::uint64_t from, std::uint64_t to) {
+            GeometrySums g{doubleOf(w[0]), doubleOf(w[1]), std::size_t(w[2])};
+            addTriangleGeometry([&](std::uint32_t v) -> const openvdb::Vec3s& { return local.position(piece, v); },
+                piece.triangles.data() + (from - t0), piece.triangles.data() + (to - t0), centre, g);
+            w = {bitsOf(g.area), bitsOf(g.signedVolume), g.degenerate};
+        });
+    Words empty; // an empty StatisticsSums per column
+    for (std::size_t c = 0; c < columns.size(); ++c) {
+        const StatisticsSums none;
+        empty.insert(empty.end(), {bitsOf(none.lo), bitsOf(none.hi), 0, 0, 0});
     }
-    const Words sums = ranks.carry(start, [&](const Words& in) {
-        GeometrySums geometry{doubleOf(in[0]), doubleOf(in[1]), std::size_t(in[2])};
-        if (totalVertices > 0)
-            addTriangleGeometry([&](std::uint32_t g) -> const openvdb::Vec3s& { return local.position(piece, g); },
-                piece.triangles.data(), piece.triangles.data() + piece.triangles.size(), centre, geometry);
-        Words out = {bitsOf(geometry.area), bitsOf(geometry.signedVolume), geometry.degenerate};
-        for (std::size_t c = 0; c < columns.size(); ++c) {
-            const std::uint64_t* w = in.data() + 3 + 5 * c;
-            StatisticsSums s;
-            s.lo = doubleOf(w[0]), s.hi = doubleOf(w[1]), s.sum = doubleOf(w[2]), s.sumSq = doubleOf(w[3]);
-            s.count = std::size_t(w[4]);
-            s.add(columns[c]->data(), columns[c]->size());
-            out.insert(out.end(), {bitsOf(s.lo), bitsOf(s.hi), bitsOf(s.sum), bitsOf(s.sumSq), s.count});
-        }
-        return out;
-    });
+    const auto sumsOf = [](const std::uint64_t* w) {
+        StatisticsSums s;
+        s.lo = doubleOf(w[0]), s.hi = doubleOf(w[1]), s.sum = doubleOf(w[2]), s.sumSq = doubleOf(w[3]);
+        s.count = std::size_t(w[4]);
+        return s;
+    };
+    const std::vector<Words> columnChunks = chunkSumsOnRanks(ranks, v0, where.vertexBegin[std::size_t(rank) + 1],
+        totalVertices, empty, [&](Words& w, std::uint64_t from, std::uint64_t to) {
+            for (std::size_t c = 0; c < columns.size(); ++c) {
+                StatisticsSums s = sumsOf(w.data() + 5 * c);
+                s.add(columns[c]->data() + (from - v0), std::size_t(to - from));
+                std::copy_n(Words{bitsOf(s.lo), bitsOf(s.hi), bitsOf(s.sum), bitsOf(s.sumSq), s.count}.begin(), 5,
+                    w.begin() + std::ptrdiff_t(5 * c));
+            }
+        });
+    GeometrySums geometry;
+    for (const Words& w : geometryChunks) geometry.join({doubleOf(w[0]), doubleOf(w[1]), std::size_t(w[2])});
+    std::vector<StatisticsSums> stats(columns.size());
+    for (const Words& w : columnChunks)
+        for (std::size_t c = 0; c < columns.size(); ++c) stats[c].join(sumsOf(w.data() + 5 * c));
 
     const MeshTopologyStats topo = topologyOnRanks(ranks, piece, where, local);
     if (ranks.rank() != 0) return nlohmann::json::object();
@@ -474,16 +533,10 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     s["boundary_edges"] = topo.boundaryEdges;
     s["non_manifold_edges"] = topo.nonManifoldEdges;
     s["components"] = topo.components;
-    s["degenerate_triangles"] = std::size_t(sums[2]);
-    s["area"] = doubleOf(sums[0]);
-    s["enclosed_volume"] = std::abs(doubleOf(sums[1]));
-    for (std::size_t c = 0; c < columns.size(); ++c) {
-        const std::uint64_t* w = sums.data() + 3 + 5 * c;
-        StatisticsSums st;
-        st.lo = doubleOf(w[0]), st.hi = doubleOf(w[1]), st.sum = doubleOf(w[2]), st.sumSq = doubleOf(w[3]);
-        st.count = std::size_t(w[4]);
-        s[names[c]] = st.result();
-    }
+    s["degenerate_triangles"] = geometry.degenerate;
+    s["area"] = geometry.area;
+    s["enclosed_volume"] = std::abs(geometry.signedVolume);
+    for (std::size_t c = 0; c < columns.size(); ++c) s[names[c]] = stats[c].result();
     return s;
 }
 

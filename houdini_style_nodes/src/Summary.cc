@@ -4,6 +4,8 @@
 #include <isouq/Columns.h>
 #include <isouq/MeshTopology.h>
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -26,6 +28,12 @@ void StatisticsSums::add(const float* values, std::size_t n)
     lo = lo_, hi = hi_, sum = sum_, sumSq = sumSq_, count = count_;
 }
 
+void StatisticsSums::join(const StatisticsSums& next)
+{
+    lo = std::min(lo, next.lo), hi = std::max(hi, next.hi);
+    sum += next.sum, sumSq += next.sumSq, count += next.count;
+}
+
 nlohmann::json StatisticsSums::result() const
 {
     if (count == 0) return {{"min", nullptr}, {"max", nullptr}, {"mean", nullptr}, {"rms", nullptr}, {"count", 0}};
@@ -35,8 +43,13 @@ nlohmann::json StatisticsSums::result() const
 
 nlohmann::json statistics(const std::vector<float>& values)
 {
+    const std::size_t chunks = (values.size() + kSumRows - 1) / kSumRows;
+    std::vector<StatisticsSums> parts(chunks);
+    tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
+        parts[c].add(values.data() + c * kSumRows, std::min(kSumRows, values.size() - c * kSumRows));
+    });
     StatisticsSums sums;
-    sums.add(values.data(), values.size());
+    for (const StatisticsSums& part : parts) sums.join(part);
     return sums.result();
 }
 

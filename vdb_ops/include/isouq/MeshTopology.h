@@ -34,13 +34,25 @@ MeshTopologyStats measureTopology(const Mesh& mesh);
 /// volume and degenerate triangles unless @a geometry.
 MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry);
 
-/// Area, signed volume and degenerate triangles, summed triangle by triangle in the order
-/// measureTopology sums them, about @a centre (measureTopology's is the centre of the vertices'
-/// bounding box): a mesh cut into consecutive runs of triangles (the pieces of SPEC §10 "MPI")
-/// that hands the sums from one run to the next gets the same bits as the whole.
+/// Rows per chunk of every sum over a mesh's rows (the area and volume here, the summary's
+/// statistics in nodes/Summary.h): each chunk of kSumRows rows is summed alone, in row order,
+/// and the chunks' sums are added in chunk order. The sums are then the same bits whatever
+/// the thread count, and a mesh cut into pieces (SPEC §10 "MPI") needs to hand on only the
+/// chunk its cut falls in.
+constexpr std::size_t kSumRows = std::size_t(1) << 16;
+
+/// Area, signed volume and degenerate triangles about @a centre (measureTopology's is the
+/// centre of the vertices' bounding box), summed triangle by triangle within a chunk
+/// (addTriangleGeometry), chunks joined in order (join).
 struct GeometrySums {
     double area = 0, signedVolume = 0;
     std::size_t degenerate = 0;
+    void join(const GeometrySums& next)
+    {
+        area += next.area;
+        signedVolume += next.signedVolume;
+        degenerate += next.degenerate;
+    }
 };
 /// @a position(v) is vertex v's position.
 template <typename PositionOf>

@@ -11,15 +11,16 @@
 
 namespace isouq::nodes {
 
-/// The running sums behind statistics(), folded value by value in order: a column cut into
-/// consecutive runs (the pieces of SPEC §10 "MPI") that hands them from run to run gets the
-/// same bits as the whole column.
+/// The running sums behind statistics(): folded value by value within a chunk of kSumRows
+/// values (add), chunks joined in order (join; isouq/MeshTopology.h), so the same bits for any
+/// thread or rank count (SPEC §10 "MPI").
 struct StatisticsSums {
     double lo = std::numeric_limits<double>::infinity(), hi = -std::numeric_limits<double>::infinity();
     double sum = 0, sumSq = 0;
     std::size_t count = 0;
 
     void add(const float* values, std::size_t n);
+    void join(const StatisticsSums& next);
     nlohmann::json result() const;
 };
 
