@@ -608,6 +608,17 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
         writeFile(dir / "series" / "s1", dicomSlice("1.2.3.9", 2.0) + huge + std::string(64, '\7'));
         requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "announces 4059231220 bytes", {out});
     }
+    SECTION("2 samples per pixel: refused before GDCM asserts")
+    {
+        // fuzz_dicom's finding (fuzz/regressions/fuzz_dicom/gdcm_samples_per_pixel_abort-*), rebuilt.
+        std::string slice = dicomSlice("1.2.3.9", 2.0);
+        const std::string samples("\x28\x00\x02\x00US\x02\x00\x01\x00", 10);
+        const std::size_t at = slice.find(samples);
+        REQUIRE(at != std::string::npos);
+        slice[at + 8] = '\2';
+        writeFile(dir / "series" / "s1", slice);
+        requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "Samples per Pixel (0028,0002) is 2", {out});
+    }
     SECTION("sequences nested 100 deep")
     {
         std::string nested;

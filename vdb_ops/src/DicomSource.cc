@@ -200,6 +200,12 @@ private:
             std::snprintf(tag, sizeof tag, "(0028,%04X)", unsigned(elem));
             damaged(pos, std::string(tag) + " is one unsigned short (2 bytes) but announces " + std::to_string(length));
         }
+        // GDCM's PixelFormat::SetSamplesPerPixel asserts 1, 3 or 4 (PS3.3 C.7.6.3.1.1; fuzz_dicom).
+        if (depth == 0 && group == 0x0028 && elem == 0x0002 && length == 2) {
+            const std::uint32_t samples = number(value, 2, syntax.bigEndian);
+            if (samples != 1 && samples != 3 && samples != 4)
+                damaged(pos, "Samples per Pixel (0028,0002) is " + std::to_string(samples) + "; DICOM allows 1 or 3");
+        }
         if (transfer && group == 0x0002 && elem == 0x0010 && length < 256) {
             transfer->resize(std::size_t(length));
             readAt(value, reinterpret_cast<unsigned char*>(transfer->data()), std::size_t(length));
