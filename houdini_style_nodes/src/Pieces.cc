@@ -268,8 +268,8 @@ struct LocalPiece {
     }
     const openvdb::Vec3s& position(const Mesh& piece, std::uint32_t g) const
     {
-        if (const int run = runs.runOf(g); run >= 0) return piece.positions[runs.localOf(g, run)];
-        return ghostPositions[std::size_t(std::lower_bound(ghosts.begin(), ghosts.end(), g) - ghosts.begin())];
+        const std::uint32_t l = localOf(g);
+        return l < nLocal ? piece.positions[l] : ghostPositions[l - nLocal];
     }
 };
 

@@ -4,8 +4,6 @@
 #include <isouq/Columns.h>
 #include <isouq/MeshTopology.h>
 
-#include <tbb/parallel_for.h>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -43,14 +41,9 @@ nlohmann::json StatisticsSums::result() const
 
 nlohmann::json statistics(const std::vector<float>& values)
 {
-    const std::size_t chunks = (values.size() + kSumRows - 1) / kSumRows;
-    std::vector<StatisticsSums> parts(chunks);
-    tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
-        parts[c].add(values.data() + c * kSumRows, std::min(kSumRows, values.size() - c * kSumRows));
-    });
-    StatisticsSums sums;
-    for (const StatisticsSums& part : parts) sums.join(part);
-    return sums.result();
+    return sumByChunks<StatisticsSums>(values.size(), [&](StatisticsSums& part, std::size_t first, std::size_t count) {
+        part.add(values.data() + first, count);
+    }).result();
 }
 
 nlohmann::json summarizeMesh(const Mesh& mesh)

@@ -610,7 +610,7 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
     }
     SECTION("2 samples per pixel: refused before GDCM asserts")
     {
-        // fuzz_dicom's finding (fuzz/regressions/fuzz_dicom/gdcm_samples_per_pixel_abort-*), rebuilt.
+        // fuzz_dicom's finding of 3 December (docs/hardening.md, Findings), rebuilt.
         std::string slice = dicomSlice("1.2.3.9", 2.0);
         const std::string samples("\x28\x00\x02\x00US\x02\x00\x01\x00", 10);
         const std::size_t at = slice.find(samples);

@@ -121,7 +121,8 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     leaves.reserve(tree.leafCount());
     tree.getNodes(leaves);
     const std::size_t grain = kParallelBlockSetLeaves;
-    if (threaded && leaves.size() >= 2 * grain) {
+    const bool parallel = threaded && leaves.size() >= 2 * grain;
+    if (parallel) {
         tbb::enumerable_thread_specific<BlockIndexTree> parts(-1);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), grain),
             [&](const tbb::blocked_range<std::size_t>& r) {
@@ -165,7 +166,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
         }
     };
     const tbb::blocked_range<std::size_t> all(0, coarseLeaves.size(), 16);
-    if (threaded && leaves.size() >= 2 * grain) tbb::parallel_for(all, number);
+    if (parallel) tbb::parallel_for(all, number);
     else number(all);
 }
 

@@ -2,7 +2,6 @@
 // over vertices, area and enclosed volume in double (MeshTopology.h).
 #include "isouq/MeshTopology.h"
 
-#include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
@@ -120,15 +119,11 @@ void measureGeometry(const Mesh& mesh, MeshTopologyStats& stats)
             hi[c] = std::max(hi[c], double(p[c]));
         }
     for (int c = 0; c < 3; ++c) centre[c] = 0.5 * (lo[c] + hi[c]);
-    const std::size_t chunks = (mesh.triangles.size() + kSumRows - 1) / kSumRows;
-    std::vector<GeometrySums> parts(chunks);
-    tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
-        const openvdb::Vec3I* first = mesh.triangles.data() + c * kSumRows;
-        addTriangleGeometry([&](std::uint32_t v) -> const openvdb::Vec3s& { return mesh.positions[v]; }, first,
-            first + std::min(kSumRows, mesh.triangles.size() - c * kSumRows), centre, parts[c]);
-    });
-    GeometrySums sums;
-    for (const GeometrySums& part : parts) sums.join(part);
+    const GeometrySums sums = sumByChunks<GeometrySums>(mesh.triangles.size(),
+        [&](GeometrySums& part, std::size_t first, std::size_t count) {
+            addTriangleGeometry([&](std::uint32_t v) -> const openvdb::Vec3s& { return mesh.positions[v]; },
+                mesh.triangles.data() + first, mesh.triangles.data() + first + count, centre, part);
+        });
     stats.area = sums.area;
     stats.enclosedVolume = std::abs(sums.signedVolume);
     stats.degenerateTriangles = sums.degenerate;

@@ -4,6 +4,9 @@
 
 #include "isouq/MeshAttributes.h"
 
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstddef>
@@ -40,6 +43,19 @@ MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* 
 /// the thread count, and a mesh cut into pieces (SPEC §10 "MPI") needs to hand on only the
 /// chunk its cut falls in.
 constexpr std::size_t kSumRows = std::size_t(1) << 16;
+
+/// The sums of rows [0, rows) by that rule, the chunks on the calling thread's TBB arena:
+/// add(sums, first, count) folds rows [first, first + count) into sums (Sums() empty).
+template <typename Sums, typename Add>
+Sums sumByChunks(std::size_t rows, const Add& add)
+{
+    std::vector<Sums> parts((rows + kSumRows - 1) / kSumRows);
+    tbb::parallel_for(std::size_t(0), parts.size(),
+        [&](std::size_t c) { add(parts[c], c * kSumRows, std::min(kSumRows, rows - c * kSumRows)); });
+    Sums sums;
+    for (const Sums& part : parts) sums.join(part);
+    return sums;
+}
 
 /// Area, signed volume and degenerate triangles about @a centre (measureTopology's is the
 /// centre of the vertices' bounding box), summed triangle by triangle within a chunk
