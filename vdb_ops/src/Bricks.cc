@@ -149,20 +149,18 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
 
     d.vertexOffsets.assign(blocks.origins.size() + 1, 0);
     d.triangleOffsets.assign(n + 1, 0);
-    d.masks.slot.assign(blocks.origins.size(), -1);
-    std::int32_t nonEmpty = 0;
+    d.masks.byBlock.assign(blocks.origins.size(), nullptr);
+    d.masks.owned.clear();
     std::uint64_t vertices = 0;
     for (std::size_t i = 0; i < n; ++i) {
         d.vertexOffsets[d.begin + i] = vertices;
         vertices += d.counts[i].vertices;
         d.triangleOffsets[i + 1] = d.triangleOffsets[i] + d.counts[i].triangles;
-        if (!d.counts[i].empty()) d.masks.slot[d.begin + i] = nonEmpty++;
     }
     d.vertexOffsets[d.end] = vertices;
     d.vertices = vertices;
-    d.masks.masks.resize(std::size_t(nonEmpty));
     for (auto& list : found) {
-        for (const auto& [block, mask] : list) d.masks.masks[std::size_t(d.masks.slot[std::size_t(block)])] = mask;
+        for (const auto& [block, mask] : list) d.masks.own(block, mask);
         list = {};
     }
     d.counted = true;
@@ -209,14 +207,14 @@ void BrickMesher::describeBlock(std::int64_t block, std::uint64_t* words) const
     if (!d.placed || block < std::int64_t(d.begin) || block >= std::int64_t(d.end))
         OPENVDB_THROW(openvdb::ValueError, "block " + std::to_string(block) + " is not this piece's");
     words[0] = d.vertexOffsets[std::size_t(block)];
-    const std::int32_t slot = d.masks.slot[std::size_t(block)];
-    for (int w = 0; w < kWords; ++w) words[1 + w] = slot < 0 ? 0 : d.masks.masks[std::size_t(slot)].bits[std::size_t(w)];
+    const EdgeMask* mask = d.masks.byBlock[std::size_t(block)];
+    for (int w = 0; w < kWords; ++w) words[1 + w] = mask ? mask->bits[std::size_t(w)] : 0;
 }
 
 void BrickMesher::learnBlock(std::int64_t block, const std::uint64_t* words)
 {
     BrickMesherData& d = *mData;
-    if (block < 0 || std::size_t(block) >= d.masks.slot.size())
+    if (block < 0 || std::size_t(block) >= d.masks.byBlock.size())
         OPENVDB_THROW(openvdb::ValueError, "block " + std::to_string(block) + " is not in the plan");
     EdgeMask mask;
     std::uint32_t total = 0;
@@ -226,8 +224,7 @@ void BrickMesher::learnBlock(std::int64_t block, const std::uint64_t* words)
         total += std::uint32_t(__builtin_popcountll(words[1 + w]));
     }
     d.vertexOffsets[std::size_t(block)] = words[0];
-    d.masks.slot[std::size_t(block)] = std::int32_t(d.masks.masks.size());
-    d.masks.masks.push_back(mask);
+    d.masks.own(block, mask);
 }
 
 void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)

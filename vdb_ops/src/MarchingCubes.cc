@@ -6,12 +6,13 @@
 // block holding their lower corner (SPEC §9). Two passes over the blocks, both parallel:
 //   count: gather the block's values with a halo into a small dense array, classify cells, and
 //          record which owned edges carry a vertex (a 1536-bit mask) and how many triangles it has;
-//   fill:  after a serial prefix sum, write each block's vertices and triangles at its offsets.
+//   fill:  after a prefix sum (parallel, integer: the same offsets for any thread count), write each block's vertices and triangles at its offsets.
 // A vertex's global index is its block's offset plus the rank of its bit in the block's mask, so
 // the output never depends on the thread count and needs no hash map.
 #include "MeshPasses.h"
 
 #include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_scan.h>
 
 #include <atomic>
 #include <chrono>
@@ -22,6 +23,7 @@ namespace isouq {
 namespace mc_internal {
 
 constexpr openvdb::Index64 kSerialLeaves = 32; // fewer leaves: one thread (bench/README.md)
+constexpr std::size_t kScanGrain = 16384;        // blocks per task of the parallel prefix sums
 
 /// Stage wall times of IsosurfaceMesher::StageTimes: lap(t) sets t to the time since the last lap.
 class StageClock {
@@ -121,28 +123,43 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     });
     clock.lap(mStageTimes.count);
 
-    // Serial prefix sums: each block's place in the output, independent of the thread count.
+    // Prefix sums: each block's place in the output. Integer sums, so a parallel scan gives the
+    // same offsets as a serial loop whatever the thread count.
     std::vector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
     std::vector<std::uint64_t>& triangleOffsets = buffers.triangleOffsets;
-    vertexOffsets.assign(blockCount + 1, 0);
-    triangleOffsets.assign(blockCount + 1, 0);
-    EdgeMasks& masks = buffers.masks;
-    masks.slot.assign(blockCount, -1);
-    std::int32_t nonEmpty = 0;
-    for (std::size_t b = 0; b < blockCount; ++b) {
-        vertexOffsets[b + 1] = vertexOffsets[b] + counts[b].vertices;
-        triangleOffsets[b + 1] = triangleOffsets[b] + counts[b].triangles;
-        if (!counts[b].empty()) masks.slot[b] = nonEmpty++;
-    }
-    resizeForFill(masks.masks, std::size_t(nonEmpty), threaded);
-    auto moveMasks = [&](auto& lists) {
-        for (auto& list : lists) {
-            for (const auto& [block, mask] : list) masks.masks[std::size_t(masks.slot[std::size_t(block)])] = mask;
-            list = {};
-        }
+    vertexOffsets.resize(blockCount + 1);
+    triangleOffsets.resize(blockCount + 1);
+    struct Sums {
+        std::uint64_t vertices = 0, triangles = 0;
     };
-    if (threaded) tbb::parallel_for(found.range(1), moveMasks);
-    else moveMasks(found);
+    auto scan = [&](const tbb::blocked_range<std::size_t>& r, Sums sum, bool final) {
+        for (std::size_t b = r.begin(); b < r.end(); ++b) {
+            if (final) {
+                vertexOffsets[b] = sum.vertices;
+                triangleOffsets[b] = sum.triangles;
+            }
+            sum.vertices += counts[b].vertices;
+            sum.triangles += counts[b].triangles;
+        }
+        return sum;
+    };
+    const tbb::blocked_range<std::size_t> allBlocks(0, blockCount, kScanGrain);
+    const Sums total = threaded && blockCount >= 2 * kScanGrain
+        ? tbb::parallel_scan(allBlocks, Sums{}, scan, [](const Sums& a, const Sums& b) {
+              return Sums{a.vertices + b.vertices, a.triangles + b.triangles};
+          })
+        : scan(allBlocks, Sums{}, true);
+    vertexOffsets[blockCount] = total.vertices;
+    triangleOffsets[blockCount] = total.triangles;
+    // The masks stay in the count pass's lists; each block points at its own (no copy).
+    EdgeMasks& masks = buffers.masks;
+    masks.byBlock.assign(blockCount, nullptr);
+    auto pointAtMasks = [&](auto& lists) {
+        for (const auto& list : lists)
+            for (const auto& [block, mask] : list) masks.byBlock[std::size_t(block)] = &mask;
+    };
+    if (threaded) tbb::parallel_for(found.range(1), pointAtMasks);
+    else pointAtMasks(found);
     if (vertexOffsets[blockCount] > std::numeric_limits<std::uint32_t>::max())
         OPENVDB_THROW(openvdb::ValueError, "the mesh would have more than 2^32 vertices");
     checkMeshFits(vertexOffsets[blockCount], triangleOffsets[blockCount], settings, provenance);

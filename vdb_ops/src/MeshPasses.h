@@ -17,6 +17,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <deque>
+
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -58,12 +60,18 @@ struct BlockCounts {
     bool empty() const { return vertices == 0 && triangles == 0; }
 };
 
-/// The edge masks of the non-empty blocks, found by block index.
+/// The edge masks of the non-empty blocks, found by block index. The mesher's masks stay in its
+/// count pass's per-thread lists; a brick keeps its own and its neighbours' in `owned`.
 struct EdgeMasks {
-    std::vector<EdgeMask> masks;
-    std::vector<std::int32_t> slot; // per block: index into masks, or -1
+    std::vector<const EdgeMask*> byBlock; // null for a block without vertices or triangles
+    std::deque<EdgeMask> owned;           // a deque: pointers into it stay valid as it grows
 
-    const EdgeMask& of(std::int32_t block) const { return masks[std::size_t(slot[std::size_t(block)])]; }
+    const EdgeMask& of(std::int32_t block) const { return *byBlock[std::size_t(block)]; }
+    void own(std::int64_t block, const EdgeMask& mask)
+    {
+        owned.push_back(mask);
+        byBlock[std::size_t(block)] = &owned.back();
+    }
 };
 
 
@@ -214,7 +222,7 @@ void forEachBlock(std::size_t count, bool threaded, openvdb::util::NullInterrupt
         }
         for (std::size_t i = r.begin(); i < r.end(); ++i) body(i);
     };
-    const tbb::blocked_range<std::size_t> all(0, count, 16);
+    const tbb::blocked_range<std::size_t> all(0, count, 2);
     if (threaded) tbb::parallel_for(all, range);
     else range(all);
     if (stop) throw InterruptedError();

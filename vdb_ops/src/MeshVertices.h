@@ -190,13 +190,14 @@ void writeHighOrder(const ScratchT& s, int x, int y, int z, int axis, std::size_
     // distance to the surface through the angle between the edge and the gradient (central
     // differences at both ends, interpolated at t).
     out.errBest[n] = spread.dLc;
-    openvdb::Vec3d gradient(0.0);
+    double gradient[3] = {0.0, 0.0, 0.0};
     const int sx = s.stride(0), sy = s.stride(1), step = s.stride(axis);
     for (int end = 0; end < 2; ++end) {
         const float* v = s.at(x, y, z) + end * step;
-        const openvdb::Vec3d g((v[sx] - v[-sx]) / ctx.spacing[0], (v[sy] - v[-sy]) / ctx.spacing[1],
-            (v[1] - v[-1]) / ctx.spacing[2]);
-        gradient += g * (end == 0 ? 1.0 - tLinear : double(tLinear));
+        const double w = end == 0 ? 1.0 - tLinear : double(tLinear);
+        gradient[0] += w * (v[sx] - v[-sx]) / ctx.spacing[0];
+        gradient[1] += w * (v[sy] - v[-sy]) / ctx.spacing[1];
+        gradient[2] += w * (v[1] - v[-1]) / ctx.spacing[2];
     }
     const float cosine = edgeNormalCosine(float(gradient[axis]), float(gradient[0]), float(gradient[1]),
         float(gradient[2]));

@@ -212,37 +212,41 @@ struct RootList {
     }
 };
 
-/// N(t) and N'(t) by Horner.
-inline double horner(const double* a, double t, double& derivative)
+/// N(t) and N'(t), with t^2 and t^4 splitting each into independent pairs (Estrin's scheme:
+/// half the dependency chain of Horner's, which the root finding waited on; issue 12).
+inline double evaluate(const double* a, double t, double& derivative)
 {
-    double p = a[5], dp = 0.0;
-    for (int l = 4; l >= 0; --l) {
-        dp = dp * t + p;
-        p = p * t + a[l];
-    }
-    derivative = dp;
-    return p;
+    const double t2 = t * t, t4 = t2 * t2;
+    derivative = (a[1] + 2.0 * a[2] * t) + t2 * (3.0 * a[3] + 4.0 * a[4] * t) + t4 * (5.0 * a[5]);
+    return (a[0] + a[1] * t) + t2 * (a[2] + a[3] * t) + t4 * (a[4] + a[5] * t);
 }
 
 /// The single root of N in (lo, hi), N having the sign of sLo just right of lo: Newton steps
-/// kept inside the shrinking bracket, bisection when a step leaves it or stalls.
+/// kept inside the shrinking bracket, bisection when a step leaves it or stalls. Newton's error
+/// after a step is about C step^2, C estimated from the last two steps; once that is below a
+/// tenth of tol the step is taken without evaluating N again to see it.
 inline double solveBracketed(const double* a, double lo, double hi, double sLo, double x, double tol)
 {
     double stepOld = hi - lo;
+    bool newtonOld = false;
     for (int it = 0; it < 64; ++it) {
         double dp;
-        const double p = horner(a, x, dp);
+        const double p = evaluate(a, x, dp);
         if (p == 0.0) return x;
         if ((p > 0.0) == (sLo > 0.0)) lo = x; else hi = x;
         double step = p / dp;
         double next = x - step;
-        if (!(next > lo && next < hi) || std::abs(step) > 0.5 * std::abs(stepOld)) {
+        const bool newton = next > lo && next < hi && std::abs(step) <= 0.5 * std::abs(stepOld);
+        if (!newton) {
             next = 0.5 * (lo + hi);
             step = x - next;
         }
+        if (std::abs(step) <= tol || hi - lo <= tol) return next;
+        if (newton && newtonOld && std::abs(step) * step * step < 0.1 * tol * stepOld * stepOld)
+            return next;
         stepOld = step;
+        newtonOld = newton;
         x = next;
-        if (std::abs(step) <= tol || hi - lo <= tol) return x;
     }
     return x;
 }
