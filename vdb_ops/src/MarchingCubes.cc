@@ -6,7 +6,8 @@
 // block holding their lower corner (SPEC §9). Two passes over the blocks, both parallel:
 //   count: gather the block's values with a halo into a small dense array, classify cells, and
 //          record which owned edges carry a vertex (a 1536-bit mask) and how many triangles it has;
-//   fill:  after a prefix sum (parallel, integer: the same offsets for any thread count), write each block's vertices and triangles at its offsets.
+//   fill:  after a prefix sum (parallel, of integers: the same offsets for any thread count),
+//          write each block's vertices and triangles at its offsets.
 // A vertex's global index is its block's offset plus the rank of its bit in the block's mask, so
 // the output never depends on the thread count and needs no hash map.
 #include "MeshPasses.h"
@@ -151,7 +152,8 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
         : scan(allBlocks, Sums{}, true);
     vertexOffsets[blockCount] = total.vertices;
     triangleOffsets[blockCount] = total.triangles;
-    // The masks stay in the count pass's lists; each block points at its own (no copy).
+    // The masks stay in the count pass's lists, which live to the end of this call; each block
+    // points at its own (no copy; a reused mesher's pointers are set again by the next call).
     EdgeMasks& masks = buffers.masks;
     masks.byBlock.assign(blockCount, nullptr);
     auto pointAtMasks = [&](auto& lists) {
