@@ -3,6 +3,7 @@
 // runs the library's calls and leaves with _exit: no atexit handlers (Open MPI's, the leak
 // checker's), no flush of the parent's stdio buffers.
 #include "Quarantine.h"
+#include "SourcesInternal.h"
 
 #include "isouq/Errors.h"
 
@@ -17,7 +18,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cerrno>
 #include <cstdio>
 
@@ -61,17 +61,12 @@ template <typename Stopped> bool receiveAll(int fd, char* data, std::size_t n, c
     return true;
 }
 
-/// What the child printed to its stderr (a memory file) since @a fd was last emptied, as one
-/// short line.
+/// What the child printed to its stderr (a memory file) since @a fd was last emptied.
 std::string printed(int fd)
 {
-    std::string text;
-    char buf[400];
+    char buf[kPrintedChars];
     const ssize_t n = ::pread(fd, buf, sizeof buf, 0);
-    for (ssize_t i = 0; i < n; ++i) text += std::iscntrl(static_cast<unsigned char>(buf[i])) ? ' ' : buf[i];
-    while (!text.empty() && text.back() == ' ') text.pop_back();
-    while (!text.empty() && text.front() == ' ') text.erase(0, 1);
-    return text;
+    return printedLine(std::string_view(buf, n > 0 ? std::size_t(n) : 0));
 }
 
 } // namespace
@@ -110,14 +105,14 @@ Quarantine::Quarantine(std::string library, Serve serve) : mLibrary(std::move(li
     mSocket = sockets[0];
 }
 
-Quarantine::~Quarantine() { stop(true); }
+Quarantine::~Quarantine() { stop(); }
 
-void Quarantine::stop(bool kill)
+void Quarantine::stop()
 {
     if (mSocket >= 0) ::close(mSocket);
     mSocket = -1;
     if (mChild > 0) {
-        if (kill) ::kill(mChild, SIGKILL);
+        ::kill(mChild, SIGKILL);
         while (::waitpid(mChild, nullptr, 0) < 0 && errno == EINTR) {}
     }
     mChild = -1;
@@ -164,7 +159,7 @@ void Quarantine::died(const std::string& subject)
     pid_t waited;
     while ((waited = ::waitpid(mChild, &status, 0)) < 0 && errno == EINTR) {}
     mChild = -1;
-    stop(false);
+    stop();
     std::string how = "it stopped";
     if (waited > 0 && WIFSIGNALED(status)) {
         const char* name = ::sigabbrev_np(WTERMSIG(status));
@@ -188,7 +183,7 @@ Message Quarantine::call(const Message& request, const std::string& subject, std
         died(subject);
     const auto stopped = [&] {
         if (openvdb::util::wasInterrupted(interrupter)) {
-            stop(true);
+            stop();
             throw InterruptedError();
         }
     };
@@ -196,7 +191,7 @@ Message Quarantine::call(const Message& request, const std::string& subject, std
     if (!receiveAll(mSocket, reinterpret_cast<char*>(&replyLength), sizeof replyLength, stopped)) died(subject);
     // An error's message may be longer than the largest answer expected.
     if (replyLength == 0 || replyLength > std::max<std::uint64_t>(maxReply, 1 << 16) + 1) {
-        stop(true);
+        stop();
         throw InputError("reading '" + subject + "', " + mLibrary + " gave " + std::to_string(replyLength)
             + " bytes where at most " + std::to_string(maxReply) + " were expected");
     }

@@ -81,7 +81,7 @@ public:
 private:
     [[noreturn]] void childMain(const Serve& serve);
     [[noreturn]] void died(const std::string& subject);
-    void stop(bool kill);
+    void stop(); ///< closes the socket, kills a live child and waits for it
 
     std::string mLibrary;
     std::mutex mCall;

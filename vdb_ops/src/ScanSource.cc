@@ -30,10 +30,10 @@ std::string StderrCapture::release()
     std::fflush(stderr);
     restore();
     std::rewind(mFile);
-    for (int c; (c = std::fgetc(mFile)) != EOF && mText.size() < 400;) mText += std::iscntrl(c) ? ' ' : char(c);
+    char raw[kPrintedChars];
+    mText = printedLine(std::string_view(raw, std::fread(raw, 1, sizeof raw, mFile)));
     std::fclose(mFile);
     mFile = nullptr;
-    while (!mText.empty() && mText.back() == ' ') mText.pop_back();
     if (mLock.owns_lock()) mLock.unlock();
     return mText;
 }
@@ -45,6 +45,14 @@ void StderrCapture::restore()
         ::close(mSaved);
         mSaved = -1;
     }
+}
+
+std::string printedLine(std::string_view raw)
+{
+    std::string text;
+    for (const char c : raw.substr(0, kPrintedChars)) text += std::iscntrl(static_cast<unsigned char>(c)) ? ' ' : c;
+    const std::size_t first = text.find_first_not_of(' ');
+    return first == std::string::npos ? std::string() : text.substr(first, text.find_last_not_of(' ') - first + 1);
 }
 
 std::size_t sampleBytes(SampleType type)

@@ -17,6 +17,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace isouq::sources_internal {
@@ -40,6 +41,11 @@ public:
 /// The size of a regular, non-empty file. @throw InputError (missing, a directory, empty).
 std::uint64_t fileSize(const std::string& path);
 
+/// What a reader library printed (at most kPrintedChars of it) as one short line: control
+/// characters as blanks, trimmed at both ends.
+constexpr std::size_t kPrintedChars = 400;
+std::string printedLine(std::string_view raw);
+
 /// Some reader libraries print to the standard error stream whatever they are told (nifticlib's
 /// "** ERROR: ...", libjpeg's messages from GDCM's trial decoders), which would make a second
 /// error line (SPEC §8). While one lives, file descriptor 2 goes to a temporary file (one at a
@@ -51,8 +57,7 @@ public:
     StderrCapture(const StderrCapture&) = delete;
     StderrCapture& operator=(const StderrCapture&) = delete;
 
-    /// Stderr back; what was printed meanwhile, control characters as blanks, trimmed, at most
-    /// 400 characters.
+    /// Stderr back; what was printed meanwhile (printedLine).
     std::string release();
 
 private:
