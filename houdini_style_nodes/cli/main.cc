@@ -20,6 +20,7 @@
 #include <tbb/global_control.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -211,6 +212,9 @@ int listNodes(bool json, bool markdown)
 
 int main(int argc, char** argv)
 {
+    // Past a file size limit (`ulimit -f`) a write fails with EFBIG and is reported and cleaned
+    // up as a full disk is, instead of SIGXFSZ ending the process with its temporary file left.
+    std::signal(SIGXFSZ, SIG_IGN);
 #ifdef ISOUQ_HAVE_MPI
     std::unique_ptr<MpiSession> mpi;
     if (isouq::nodes::launchedByMpiLauncher()) {

@@ -5,7 +5,12 @@
 
 #include <isouq/Errors.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cstdlib>
+#include <cstring>
 
 namespace isouq::nodes {
 namespace {
@@ -115,10 +120,28 @@ public:
         return words;
     }
 
-    std::unique_ptr<SharedFile> openShared(const std::string& path) const override
+    std::unique_ptr<SharedFile> openShared(const std::string& path, std::uint64_t bytes, std::string& why) const override
     {
+        // Rank 0 allocates the file's blocks first: a full disk or a file size limit is then
+        // one error before any row is written, in the words one process uses, rather than a
+        // failed MPI_File_write_at. A file system without fallocate skips it.
+        int error = 0;
+        if (mRank == 0) {
+            const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC);
+            if (fd < 0 || ::fallocate(fd, 0, 0, off_t(bytes)) != 0) error = errno;
+            if (fd >= 0) ::close(fd);
+            if (error == EOPNOTSUPP || error == ENOSYS) error = 0;
+        }
+        MPI_Bcast(&error, 1, MPI_INT, 0, mComm);
+        if (error != 0) {
+            why = std::strerror(error);
+            return nullptr;
+        }
         MPI_File file = MPI_FILE_NULL;
-        if (MPI_File_open(mComm, path.c_str(), MPI_MODE_WRONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) return nullptr;
+        if (MPI_File_open(mComm, path.c_str(), MPI_MODE_WRONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) {
+            why = "MPI_File_open failed";
+            return nullptr;
+        }
         return std::make_unique<MpiSharedFile>(file);
     }
 

@@ -581,9 +581,11 @@ void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& whe
     const std::pair<std::size_t, std::size_t> strides = plyRowBytes(piece);
     const std::size_t vStride = strides.first, fStride = strides.second; // captured below (C++17)
     {
-        const std::unique_ptr<SharedFile> shared = ranks.openShared(temp);
+        std::string why;
+        const std::unique_ptr<SharedFile> shared =
+            ranks.openShared(temp, headerBytes + vertices * vStride + triangles * fStride, why);
         ranks.step([&] {
-            if (!shared) throw IoError("cannot write " + path + ": MPI_File_open failed");
+            if (!shared) throw IoError("cannot write " + path + ": " + why);
             if (rank == 0) shared->writeAt(0, header.data(), header.size(), path);
             // Rows go to the runs of the rank's sections in order (MeshPiece), whole rows a chunk.
             const Runs vertexRuns(where.vertexBegin, rank, ranks.size()), faceRuns(where.triangleBegin, rank, ranks.size());

@@ -235,6 +235,18 @@ TEST_CASE("CLI hostile: a small file that implies a mesh larger than memory is r
     requireRefused(r, "memory available", {tmp.path / "out.ply"});
 }
 
+TEST_CASE("CLI hostile: a file size limit is a full disk, not a crash", "[cli][hostile]")
+{
+    // `ulimit -f` (bash: 1024-byte blocks) lets 100 kB of the 1.3 MB PLY through; SIGXFSZ used to
+    // end the process with its temporary file left behind.
+    TempDir tmp;
+    const CliResult r = runCli("-c 'ulimit -f 100; exec " + std::string(ISOUQ_CLI) +
+                                   " mesh field:sphere -n 64 -q -o out.ply --summary s.json'",
+        tmp.path, "bash");
+    requireRefused(r, "File too large", {tmp.path / "out.ply", tmp.path / "s.json"});
+    requireNoTemporaries(tmp.path);
+}
+
 namespace {
 
 /// Waits (at most 60 s) until process @a pid catches SIGINT, SIGTERM and SIGHUP (SigCgt in

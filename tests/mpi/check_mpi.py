@@ -201,16 +201,21 @@ def bad_input(args):
         [os.path.join(args.data, "sphere.vdb"), "--ply-format", "ascii"],  # not yet under MPI
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
+        # The disk takes 100 kB of the 3.7 MB PLY (a file size limit: the same EFBIG as a quota).
+        [os.path.join(args.data, "sphere.vdb"), "--linear-only"],
     ]
+
     for extra in cases:
-        r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+        # The limit on the ranks only: the launcher writes its own files.
+        limit = ["prlimit", "--fsize=100000"] if extra[-1] == "--linear-only" else []
+        r = run(mpirun(args, args.np) + limit + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
         lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
         if r.returncode != 2 or len(lines) != 1:
             sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
         if os.path.exists(out) or glob.glob(os.path.join(work, ".isouq-*")):
             sys.exit(f"{extra}: an output was left behind")
         if "--ply-format" not in extra:  # one process says the same
-            one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+            one = run(limit + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip() != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
         print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")

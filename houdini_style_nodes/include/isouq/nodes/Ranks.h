@@ -40,8 +40,9 @@ public:
     /// Point to point: @a words to rank @a to; the next words from rank @a from.
     virtual void send(const Words& words, int to) const = 0;
     virtual Words receive(int from) const = 0;
-    /// Opens the existing file @a path for writing on every rank; nullptr where it cannot be.
-    virtual std::unique_ptr<SharedFile> openShared(const std::string& path) const = 0;
+    /// Opens the existing file @a path, to be @a bytes long, for writing on every rank; on
+    /// every rank nullptr with @a why when it cannot be (no space for @a bytes, say).
+    virtual std::unique_ptr<SharedFile> openShared(const std::string& path, std::uint64_t bytes, std::string& why) const = 0;
     /// Whether a signal arrived on this rank.
     virtual bool interrupted() const = 0;
 
