@@ -2,8 +2,9 @@
 // tools::volumeToMesh (adaptivity 0, same isovalue) on the same grid in one process
 // (bench/README.md; DESIGN.md goals: at most 0.8x the time and at most the memory increment).
 //
-// Time: per case and thread count, one warm-up call of each, then interleaved repeats; the
-// table gives the median wall time and the median process CPU time (user + system, all threads).
+// Time: per case and thread count, one warm-up call of each, then repeats that take turns
+// between the algorithms and the thread counts; the table gives the median wall time and the
+// median process CPU time (user + system, all threads), and the thread scaling of each.
 // Memory: a fresh child process (this binary re-executed) builds the same grid, trims the heap,
 // resets the high-water mark (/proc/self/clear_refs "5"), makes one call and reports the rise of
 // VmHWM; the median over several children is given. Triangles per second count a quad of
@@ -32,6 +33,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <sstream>
 #include <stdexcept>
@@ -223,6 +225,7 @@ std::string loadAverage()
 
 double median(std::vector<double> v)
 {
+    if (v.empty()) return std::numeric_limits<double>::quiet_NaN(); // --memory-runs 0
     std::sort(v.begin(), v.end());
     const std::size_t n = v.size();
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
@@ -343,22 +346,40 @@ void benchCase(const std::string& caseName, const Options& o)
     const openvdb::FloatGrid::Ptr grid = makeGrid(caseName, o.dataDir);
     const float isovalue = isovalueOf(caseName, *grid);
     const double activeM = double(grid->activeVoxelCount()) * 1e-6;
-    for (const int threads : o.threads) {
-        const std::string load = loadAverage();
-        const auto control = limitThreads(threads);
-        const int used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
-        const Algo algos[2] = {o.isouqPass, Algo::VolumeToMesh};
+    const Algo algos[2] = {o.isouqPass, Algo::VolumeToMesh};
+    const std::string load = loadAverage();
+    // One row per thread count; the thread counts take turns call by call, as the two
+    // algorithms do, so a drift of the machine's speed shows in both rows alike.
+    struct Row {
+        int used = 0;
         std::size_t tris[2] = {0, 0};
-        std::unique_ptr<Reuse> reuse = o.reuse ? std::make_unique<Reuse>() : nullptr;
-        for (int a = 0; a < 2; ++a) tris[a] = runOnce(algos[a], *grid, isovalue, reuse.get()).triangles; // warm-up
         std::vector<double> wall[2], cpu[2];
-        for (int r = 0; r < o.repeats; ++r)
+        std::unique_ptr<Reuse> reuse;
+    };
+    std::vector<Row> rows(o.threads.size());
+    for (std::size_t t = 0; t < rows.size(); ++t) {
+        const auto control = limitThreads(o.threads[t]);
+        Row& row = rows[t];
+        row.used = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+        if (o.reuse) row.reuse = std::make_unique<Reuse>();
+        for (int a = 0; a < 2; ++a) row.tris[a] = runOnce(algos[a], *grid, isovalue, row.reuse.get()).triangles; // warm-up
+    }
+    for (int r = 0; r < o.repeats; ++r)
+        for (std::size_t t = 0; t < rows.size(); ++t) {
+            const auto control = limitThreads(o.threads[t]);
             for (int a = 0; a < 2; ++a) {
+                // Every call starts with the heap trimmed: what one call freed would otherwise be
+                // the next call's output, already paged in, for whichever call comes next.
+                malloc_trim(0);
                 const double w0 = wallSeconds(), c0 = cpuSeconds();
-                runOnce(algos[a], *grid, isovalue, reuse.get());
-                wall[a].push_back(wallSeconds() - w0);
-                cpu[a].push_back(cpuSeconds() - c0);
+                runOnce(algos[a], *grid, isovalue, rows[t].reuse.get());
+                rows[t].wall[a].push_back(wallSeconds() - w0);
+                rows[t].cpu[a].push_back(cpuSeconds() - c0);
             }
+        }
+    for (std::size_t t = 0; t < rows.size(); ++t) {
+        const int threads = o.threads[t];
+        const Row& row = rows[t];
         double mem[2];
         for (int a = 0; a < 2; ++a) {
             std::vector<double> runs;
@@ -366,19 +387,26 @@ void benchCase(const std::string& caseName, const Options& o)
                 runs.push_back(memoryIncrementMiB(caseName, algos[a], threads, o.dataDir));
             mem[a] = median(runs);
         }
-        const double w[2] = {median(wall[0]), median(wall[1])};
-        const double c[2] = {median(cpu[0]), median(cpu[1])};
+        const double w[2] = {median(row.wall[0]), median(row.wall[1])};
+        const double c[2] = {median(row.cpu[0]), median(row.cpu[1])};
         // Times under 10 ms with two decimals (the small-grid latency goal is 1 ms, issue 12).
         const char* msFormat = w[0] < 1e-2 ? "%.2f" : "%.1f";
         char ms[2][32];
         for (int a = 0; a < 2; ++a) std::snprintf(ms[a], sizeof ms[a], msFormat, 1e3 * w[a]);
         std::printf("| %s | %.2f | %s%d | %zu | %zu | %s | %s | **%.2f** | %.1f | %.1f | %.2f | %.1f | %.1f "
                     "| %.1f | %.1f | **%.2f** | %s |\n",
-            caseName.c_str(), activeM, threads <= 0 ? "default " : "", used, tris[0], tris[1],
-            ms[0], ms[1], w[0] / w[1], 1e3 * c[0], 1e3 * c[1], c[0] / c[1], 1e-6 * double(tris[0]) / w[0],
-            1e-6 * double(tris[1]) / w[1], mem[0], mem[1], mem[0] / mem[1], load.c_str());
-        std::fflush(stdout);
+            caseName.c_str(), activeM, threads <= 0 ? "default " : "", row.used, row.tris[0], row.tris[1],
+            ms[0], ms[1], w[0] / w[1], 1e3 * c[0], 1e3 * c[1], c[0] / c[1], 1e-6 * double(row.tris[0]) / w[0],
+            1e-6 * double(row.tris[1]) / w[1], mem[0], mem[1], mem[0] / mem[1], load.c_str());
     }
+    if (rows.size() == 2 && rows[0].used != rows[1].used) {
+        const Row& many = rows[0].used > rows[1].used ? rows[0] : rows[1];
+        const Row& few = &many == &rows[0] ? rows[1] : rows[0];
+        std::printf("\n%s: %d threads are %.2fx as fast as %d for isouq, %.2fx for volumeToMesh (median times).\n\n",
+            caseName.c_str(), many.used, median(few.wall[0]) / median(many.wall[0]), few.used,
+            median(few.wall[1]) / median(many.wall[1]));
+    }
+    std::fflush(stdout);
 }
 
 /// --load: isouq::loadVolume of a dense scan (read, Otsu's default isovalue, dense to sparse)

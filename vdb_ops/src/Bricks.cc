@@ -252,9 +252,8 @@ void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
 
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();
-    resizeForFill(mesh.positions, vertices, settings.threaded);
-    resizeForFill(mesh.triangles, triangles, settings.threaded);
-    const VertexColumns columns = VertexColumns::allocate(mesh, provenance, settings, settings.threaded);
+    const VertexColumns columns =
+        VertexColumns::allocate(mesh, vertices, triangles, provenance, settings, settings.threaded);
     const VertexContext context{isovalue, toWorld, grid.transform().voxelSize(), bounds,
         settings.stencil, settings.method, settings.uncertainty};
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(

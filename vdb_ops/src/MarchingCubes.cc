@@ -169,9 +169,8 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
 
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();
-    resizeForFill(mesh.positions, vertexOffsets[blockCount], threaded);
-    resizeForFill(mesh.triangles, triangleOffsets[blockCount], threaded);
-    const VertexColumns columns = VertexColumns::allocate(mesh, provenance, settings, threaded);
+    const VertexColumns columns = VertexColumns::allocate(mesh, vertexOffsets[blockCount],
+        triangleOffsets[blockCount], provenance, settings, threaded);
     clock.lap(mStageTimes.allocate);
     const VertexContext context{isovalue, toWorld, grid.transform().voxelSize(), bounds,
         settings.stencil, settings.method, settings.uncertainty};

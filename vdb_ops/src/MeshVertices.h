@@ -17,8 +17,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <optional>
+#include <type_traits>
+#include <variant>
 #include <vector>
 
 namespace isouq::mc_internal {
@@ -89,59 +92,60 @@ struct VertexColumns {
     float *errEstCubic = nullptr, *errEstWeno = nullptr;
     float *dLc = nullptr, *dLw = nullptr, *dCw = nullptr, *maxVar = nullptr;
 
-    /// Sizes the mesh's columns (positions already sized), drops the columns this pass does not
-    /// write (a reused mesh's leftovers), and points at them. The pointers are to the columns'
-    /// storage, which moving a column (the table growing or shrinking) does not move.
-    static VertexColumns allocate(Mesh& mesh, bool provenance, const MeshSettings& settings, bool threaded)
+    /// Sizes positions, triangles and the columns this pass writes, drops the columns it does
+    /// not write (a reused mesh's leftovers), and points at them. The columns are sized side by
+    /// side, a task each (resize()'s zero fill is serial within one column). The pointers are to
+    /// the columns' storage, which moving a column (the table growing or shrinking) does not move.
+    static VertexColumns allocate(Mesh& mesh, std::size_t vertices, std::size_t triangles, bool provenance,
+        const MeshSettings& settings, bool threaded)
     {
-        std::vector<std::string> names;
-        VertexColumns c;
-        declare(mesh, provenance, settings, threaded, names, c);
-        mesh.vertexAttributes.retainOnly(names);
+        std::vector<std::string_view> names;
+        declare(provenance, settings, names);
+        AttributeTable& a = mesh.vertexAttributes;
+        for (std::string_view name : names) {
+            if (findColumnInfo(name)->type == ColumnType::UInt8) a.reuse<std::uint8_t>(name);
+            else if (findColumnInfo(name)->type == ColumnType::Int32) a.reuse<std::int32_t>(name);
+            else a.reuse<float>(name);
+        }
+        a.retainOnly(std::vector<std::string>(names.begin(), names.end()));
         mesh.faceAttributes.clear();
+
+        std::vector<std::function<void()>> sizes{[&] { resizeForFill(mesh.positions, vertices, threaded); },
+            [&] { resizeForFill(mesh.triangles, triangles, threaded); }};
+        for (Attribute& column : a.columns())
+            sizes.push_back([&] { std::visit([&](auto& v) { resizeForFill(v, vertices, threaded); }, column.data); });
+        if (threaded) tbb::parallel_for(std::size_t(0), sizes.size(), [&](std::size_t i) { sizes[i](); });
+        else for (const auto& size : sizes) size();
+
+        VertexColumns c;
+        c.positions = mesh.positions.data();
+        auto at = [&](auto*& out, std::string_view name) {
+            using T = std::remove_pointer_t<std::remove_reference_t<decltype(out)>>;
+            if (auto* column = a.find<T>(name)) out = column->data();
+        };
+        at(c.edgeI, col::kEdgeI), at(c.edgeJ, col::kEdgeJ), at(c.edgeK, col::kEdgeK);
+        at(c.edgeAxis, col::kEdgeAxis), at(c.tLinear, col::kTLinear);
+        at(c.errEst, col::kErrEst), at(c.errBound, col::kErrBound);
+        at(c.tCubic, col::kTCubic), at(c.tWeno, col::kTWeno), at(c.tWenoPaper, col::kTWenoPaper);
+        at(c.order, col::kOrder), at(c.errBest, col::kErrBest), at(c.errBestSurface, col::kErrBestSurface);
+        at(c.errEstCubic, col::kErrEstCubic), at(c.errEstWeno, col::kErrEstWeno);
+        at(c.dLc, col::kDLc), at(c.dLw, col::kDLw), at(c.dCw, col::kDCw), at(c.maxVar, col::kMaxVar);
         return c;
     }
 
 private:
-    static void declare(Mesh& mesh, bool provenance, const MeshSettings& settings, bool threaded,
-        std::vector<std::string>& names, VertexColumns& c)
+    /// The names of the vertex columns this pass writes (SPEC §6), in PLY order.
+    static void declare(bool provenance, const MeshSettings& settings, std::vector<std::string_view>& names)
     {
-        names.clear();
-        c.positions = mesh.positions.data();
-        const std::size_t n = mesh.positions.size();
-        AttributeTable& a = mesh.vertexAttributes;
-        auto add = [&](auto zero, std::string_view name) {
-            names.emplace_back(name);
-            auto& column = a.reuse<decltype(zero)>(name); // every value is written by the fill
-            resizeForFill(column, n, threaded);
-            return column.data();
-        };
-        auto addFloat = [&](std::string_view name) { return add(0.0f, name); };
-        auto addInt = [&](std::string_view name) { return add(std::int32_t(0), name); };
-        if (provenance) {
-            c.edgeI = addInt(col::kEdgeI);
-            c.edgeJ = addInt(col::kEdgeJ);
-            c.edgeK = addInt(col::kEdgeK);
-            c.edgeAxis = add(std::uint8_t(0), col::kEdgeAxis);
-            c.tLinear = addFloat(col::kTLinear);
-        }
+        if (provenance)
+            names.insert(names.end(), {col::kEdgeI, col::kEdgeJ, col::kEdgeK, col::kEdgeAxis, col::kTLinear});
         if (!settings.uncertainty) return;
-        c.errEst = addFloat(col::kErrEst);
-        c.errBound = addFloat(col::kErrBound);
+        names.insert(names.end(), {col::kErrEst, col::kErrBound});
         if (!settings.highOrder) return;
-        c.tCubic = addFloat(col::kTCubic);
-        c.tWeno = addFloat(col::kTWeno);
-        if (settings.method == EdgeMethod::WenoPaper) c.tWenoPaper = addFloat(col::kTWenoPaper);
-        c.order = add(std::uint8_t(0), col::kOrder);
-        c.errBest = addFloat(col::kErrBest);
-        c.errBestSurface = addFloat(col::kErrBestSurface);
-        c.errEstCubic = addFloat(col::kErrEstCubic);
-        c.errEstWeno = addFloat(col::kErrEstWeno);
-        c.dLc = addFloat(col::kDLc);
-        c.dLw = addFloat(col::kDLw);
-        c.dCw = addFloat(col::kDCw);
-        c.maxVar = addFloat(col::kMaxVar);
-        return;
+        names.insert(names.end(), {col::kTCubic, col::kTWeno});
+        if (settings.method == EdgeMethod::WenoPaper) names.push_back(col::kTWenoPaper);
+        names.insert(names.end(), {col::kOrder, col::kErrBest, col::kErrBestSurface, col::kErrEstCubic,
+                                      col::kErrEstWeno, col::kDLc, col::kDLw, col::kDCw, col::kMaxVar});
     }
 };
 
