@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
 # Strong scaling of `isouq mesh` on MPI ranks with one thread per rank, and per-rank peak memory
-# against one process (issue 15; docs/mpi.md). Prints one line per run and the load average.
-#   bench/mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS]
+# against one process (issue 15; docs/mpi.md). One process, -np 1 and -np 2 take turns R times
+# (so a drift of the machine shows in all three alike); prints every run, then the medians, the
+# speedup of -np 2 over -np 1 and the peak of a rank at -np 2 over one process's, and the load.
+#   bench/mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS] [R]
 # The input is a level-set sphere made with pyopenvdb (radius 400 voxels: 12 M active voxels,
 # 3.0 M vertices, 6.0 M triangles); every run writes the same PLY, which the script checks.
 set -euo pipefail
-isouq=${1:?usage: mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS]}
+isouq=${1:?usage: mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS] [R]}
 work=${2:-/tmp/isouq-mpi-bench}
 radius=${3:-400}
+repeats=${4:-3}
 mkdir -p "$work"
 input=$work/sphere$radius.vdb
 if [ ! -f "$input" ]; then
@@ -18,13 +21,25 @@ g.name = 'ls'
 vdb.write('$input', grids=[g])"
 fi
 mpirun=(mpirun --oversubscribe --allow-run-as-root -q --bind-to none)
+median() { sort -g | awk '{v[NR] = $1} END {print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
 for flags in "" "--linear-only"; do
-  echo "== isouq mesh sphere$radius.vdb $flags -j 1 ($(uptime | sed 's/.*load/load/'))"
-  /usr/bin/time -f "one process: %e s wall, %U+%S s CPU, peak %M KB" "$isouq" mesh "$input" -o "$work/one.ply" $flags -q -j 1 >/dev/null
-  for np in 1 2; do
-    "${mpirun[@]}" -np $np /usr/bin/time -f "-np $np, a rank: %e s wall, %U+%S s CPU, peak %M KB" \
-      "$isouq" mesh "$input" -o "$work/np$np.ply" --summary "$work/np$np.json" $flags -q -j 1 >/dev/null
-    cmp -s "$work/one.ply" "$work/np$np.ply" || { echo "np $np: the PLY differs"; exit 1; }
+  echo "== isouq mesh sphere$radius.vdb $flags -j 1, $repeats times ($(uptime | sed 's/.*load/load/'))"
+  log=$work/runs$flags.txt
+  : > "$log"
+  for ((r = 0; r < repeats; ++r)); do
+    /usr/bin/time -f "one %e %M" -a -o "$log" "$isouq" mesh "$input" -o "$work/one.ply" $flags -q -j 1 >/dev/null
+    for np in 1 2; do
+      "${mpirun[@]}" -np $np /usr/bin/time -f "np$np %e %M" -a -o "$log" \
+        "$isouq" mesh "$input" -o "$work/np$np.ply" --summary "$work/np$np.json" $flags -q -j 1 >/dev/null
+      cmp -s "$work/one.ply" "$work/np$np.ply" || { echo "np $np: the PLY differs"; exit 1; }
+    done
   done
-  echo "   ($(uptime | sed 's/.*load/load/'))"
+  sed 's/^/   run: /; s/ \([0-9.]*\) \([0-9]*\)$/ \1 s, peak \2 KB/' "$log"
+  for who in one np1 np2; do
+    printf '   %s: median %s s, peak %s KB\n' "$who" "$(awk -v w=$who '$1 == w {print $2}' "$log" | median)" \
+      "$(awk -v w=$who '$1 == w {print $3}' "$log" | median)"
+  done
+  t1=$(awk '$1 == "np1" {print $2}' "$log" | median); t2=$(awk '$1 == "np2" {print $2}' "$log" | median)
+  m0=$(awk '$1 == "one" {print $3}' "$log" | median); m2=$(awk '$1 == "np2" {print $3}' "$log" | median)
+  echo "   -np 2 against -np 1: $(echo "scale=2; $t1 / $t2" | bc)x; a rank's peak at -np 2 against one process: $(echo "scale=3; $m2 / $m0" | bc)x ($(uptime | sed 's/.*load/load/'))"
 done

@@ -22,6 +22,8 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -143,6 +145,12 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
 struct MpiSession {
     MpiSession(int& argc, char**& argv)
     {
+        // Every rank on this machine (Open MPI's mpirun says so): Open MPI's ob1 messaging over
+        // shared memory unless the user chose a layer. UCX, Open MPI's default where installed,
+        // probes network devices for 0.2 s at start-up, which the ranks of one machine never use.
+        const char* size = std::getenv("OMPI_COMM_WORLD_SIZE");
+        const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE");
+        if (size && local && std::strcmp(size, local) == 0) ::setenv("OMPI_MCA_pml", "ob1", 0);
         int provided = 0;
         MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
         ranks = isouq::nodes::mpiRanks(MPI_COMM_WORLD, [] { return isouq::cli::ProgressInterrupter::interrupted(); });
