@@ -75,8 +75,17 @@ echo; echo "### Mesher stages at N = 1024"; load
 "$bench" --stages --pass full --cases sphere1024 --repeats "$repeats" | tail -n 7
 echo; load
 "$bench" --cases sphere1024 --threads default,1 --repeats "$repeats" --memory-runs 3
-"$bench" --pass full --cases sphere1024 --threads default,1 --repeats "$repeats" --memory-runs 3 | tail -n 2
+"$bench" --pass full --cases sphere1024 --threads default,1 --repeats "$repeats" --memory-runs 3 | grep '^| sphere\|as fast'
+echo
 
 echo; echo "### Full pass on Tangle 32^3"; load
-"$bench" --pass full --cases tangle32 --threads default,1 --repeats 201 --memory-runs 1
-"$bench" --pass full --cases tangle32 --threads default,1 --repeats 201 --memory-runs 1 --reuse | tail -n 2
+# One thread count a run: taking turns would wake the worker threads for every 1-ms call.
+first=
+for reuse in "" --reuse; do
+    [ -z "$reuse" ] || echo "With --reuse (one IsosurfaceMesher and one Mesh for all calls):"
+    for threads in default 1; do
+        "$bench" --pass full --cases tangle32 --threads $threads --repeats 1001 --memory-runs 1 $reuse |
+            if [ -z "$reuse$first" ]; then cat; else grep '^| tangle'; fi
+        first=no
+    done
+done
