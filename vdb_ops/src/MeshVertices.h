@@ -102,9 +102,10 @@ struct VertexColumns {
         std::vector<std::string_view> names;
         declare(provenance, settings, names);
         AttributeTable& a = mesh.vertexAttributes;
-        for (std::string_view name : names) {
-            if (findColumnInfo(name)->type == ColumnType::UInt8) a.reuse<std::uint8_t>(name);
-            else if (findColumnInfo(name)->type == ColumnType::Int32) a.reuse<std::int32_t>(name);
+        for (std::string_view name : names) { // reused as they are: the fill writes every value
+            const ColumnType type = findColumnInfo(name)->type;
+            if (type == ColumnType::UInt8) a.reuse<std::uint8_t>(name);
+            else if (type == ColumnType::Int32) a.reuse<std::int32_t>(name);
             else a.reuse<float>(name);
         }
         a.retainOnly(std::vector<std::string>(names.begin(), names.end()));
