@@ -240,7 +240,7 @@ private:
         if (depth == 0 && group == 0x0028 && elem == 0x0002 && length == 2) {
             const std::uint32_t samples = number(value, 2, syntax.bigEndian);
             if (samples != 1 && samples != 3 && samples != 4)
-                damaged(pos, "Samples per Pixel (0028,0002) is " + std::to_string(samples) + "; DICOM allows 1 or 3");
+                damaged(pos, "Samples per Pixel (0028,0002) is " + std::to_string(samples) + "; DICOM allows 1 or 3 (4 in retired data)");
         }
         if (transfer && group == 0x0002 && elem == 0x0010 && length < 256) {
             transfer->resize(std::size_t(length));
