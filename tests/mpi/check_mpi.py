@@ -192,7 +192,7 @@ def bad_input(args):
     g = vdb.read(os.path.join(args.data, "sphere.vdb"), "ls_sphere")
     g.getAccessor().setValueOn((60, 1, 2), float("nan"))
     vdb.write(nan_vdb, grids=[g])
-    cases = [
+    inputs = [
         [nan_vdb],
         [os.path.join(work, "missing.vdb")],
         [truncated],
@@ -201,13 +201,13 @@ def bad_input(args):
         [os.path.join(args.data, "sphere.vdb"), "--ply-format", "ascii"],  # not yet under MPI
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
-        # The disk takes 100 kB of the 3.7 MB PLY (a file size limit: the same EFBIG as a quota).
-        [os.path.join(args.data, "sphere.vdb"), "--linear-only"],
     ]
-
-    for extra in cases:
-        # The limit on the ranks only: the launcher writes its own files.
-        limit = ["prlimit", "--fsize=100000"] if extra[-1] == "--linear-only" else []
+    # The disk takes 100 kB of the 3.7 MB PLY (a file size limit: the same EFBIG as a quota),
+    # on the ranks only: the launcher writes its own files.
+    small_disk = ["prlimit", "--fsize=100000"]
+    cases = [(extra, []) for extra in inputs]
+    cases.append(([os.path.join(args.data, "sphere.vdb"), "--linear-only"], small_disk))
+    for extra, limit in cases:
         r = run(mpirun(args, args.np) + limit + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
         lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
         if r.returncode != 2 or len(lines) != 1:

@@ -17,7 +17,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <functional>
 #include <limits>
 #include <optional>
 #include <type_traits>
@@ -111,12 +110,14 @@ struct VertexColumns {
         a.retainOnly(std::vector<std::string>(names.begin(), names.end()));
         mesh.faceAttributes.clear();
 
-        std::vector<std::function<void()>> sizes{[&] { resizeForFill(mesh.positions, vertices, threaded); },
-            [&] { resizeForFill(mesh.triangles, triangles, threaded); }};
-        for (Attribute& column : a.columns())
-            sizes.push_back([&] { std::visit([&](auto& v) { resizeForFill(v, vertices, threaded); }, column.data); });
-        if (threaded) tbb::parallel_for(std::size_t(0), sizes.size(), [&](std::size_t i) { sizes[i](); });
-        else for (const auto& size : sizes) size();
+        auto size = [&](std::size_t i) { // 0 positions, 1 triangles, then the vertex columns
+            if (i == 0) resizeForFill(mesh.positions, vertices, threaded);
+            else if (i == 1) resizeForFill(mesh.triangles, triangles, threaded);
+            else std::visit([&](auto& v) { resizeForFill(v, vertices, threaded); }, a.columns()[i - 2].data);
+        };
+        const std::size_t count = 2 + a.columns().size();
+        if (threaded) tbb::parallel_for(std::size_t(0), count, size);
+        else for (std::size_t i = 0; i < count; ++i) size(i);
 
         VertexColumns c;
         c.positions = mesh.positions.data();
