@@ -193,6 +193,7 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
     }
     if (const std::string problem = checkScalarVolume(grid, out.volume->isovalue, scan); !problem.empty())
         throw InputError(problem);
+    if (!dense) releaseMappedPages(request.input); // the scans loaded the rank's leaves
     return out;
 }
 

@@ -7,8 +7,11 @@
 
 #include <catch2/catch.hpp>
 #include <openvdb/io/File.h>
+#include <openvdb/tools/LevelSetSphere.h>
 #include <tbb/parallel_for.h>
 
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -491,6 +494,76 @@ TEST_CASE("VolumeSources: error for a truncated .vdb", "[sources][errors][vdb][d
     const std::string message = inputError(request(path));
     CHECK((message.find("truncated") != std::string::npos || message.find("not a VDB") != std::string::npos));
 }
+
+#ifdef __linux__
+/// Resident kB of this process's mappings of @a path (/proc/self/smaps), found by device and inode.
+long mappedResidentKb(const std::string& path)
+{
+    struct stat st {};
+    REQUIRE(::stat(path.c_str(), &st) == 0);
+    std::ifstream smaps("/proc/self/smaps");
+    long kb = 0;
+    bool ours = false;
+    for (std::string line; std::getline(smaps, line);) {
+        unsigned long long begin = 0, end = 0, inode = 0;
+        unsigned major = 0, minor = 0;
+        if (std::sscanf(line.c_str(), "%llx-%llx %*s %*s %x:%x %llu", &begin, &end, &major, &minor, &inode) == 5)
+            ours = inode == st.st_ino && major == major(st.st_dev) && minor == minor(st.st_dev);
+        else if (ours && line.rfind("Rss:", 0) == 0)
+            kb += std::stol(line.substr(4));
+    }
+    return kb;
+}
+
+TEST_CASE("VolumeSources: a delay-loaded .vdb gives back its mapped pages and still reads right",
+    "[sources][vdb][mpi]")
+{
+    // An MPI rank maps the file (delayed loading) and, once its leaves are loaded, drops the
+    // mapped pages (releaseMappedPages): its memory is then its leaves, not also the file.
+    TempDir dir;
+    openvdb::initialize();
+    const auto truth = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(60.0f, openvdb::Vec3f(0.5f), 1.0f, 3.0f);
+    truth->setName("ls");
+    const std::string path = dir / "sphere.vdb";
+    {
+        openvdb::io::File file(path);
+        file.setCompression(openvdb::io::COMPRESS_NONE); // 2 KB of values a leaf in the file
+        file.write({truth});
+    }
+    VolumeRequest r = request(path);
+    r.delayLoad = true;
+    const isouq::LoadedVolume volume = isouq::loadVolume(r);
+    const auto& tree = volume.grid->tree();
+    REQUIRE(tree.leafCount() == truth->tree().leafCount());
+    REQUIRE(tree.leafCount() > 1000);
+    // Load the first half of the leaves (an MPI rank's own), as a rank's scan does.
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    tree.getNodes(leaves);
+    const std::size_t half = leaves.size() / 2;
+    auto sameAsTruth = [&](std::size_t from, std::size_t to) {
+        std::size_t differ = 0;
+        const auto truthAccess = truth->getConstAccessor();
+        for (std::size_t l = from; l < to; ++l)
+            for (auto v = leaves[l]->cbeginValueAll(); v; ++v)
+                differ += *v != truthAccess.getValue(v.getCoord());
+        return differ;
+    };
+    CHECK(sameAsTruth(0, half) == 0);
+    const long before = mappedResidentKb(path);
+    CHECK(before >= long(half) * 2 * 4 / 5); // about 2 KB a loaded leaf, in whole pages
+
+    isouq::releaseMappedPages(path);
+    CHECK(mappedResidentKb(path) == 0);
+    CHECK(sameAsTruth(0, half) == 0);              // the loaded leaves kept their copies
+    // The others still load from the mapping (their pages fault in again); once every leaf is
+    // loaded, OpenVDB unmaps the file.
+    const std::size_t threeQuarters = leaves.size() * 3 / 4;
+    CHECK(sameAsTruth(half, threeQuarters) == 0);
+    CHECK(mappedResidentKb(path) > 0);
+    CHECK(sameAsTruth(threeQuarters, leaves.size()) == 0);
+    isouq::releaseMappedPages(dir / "not-there.vdb"); // nothing to release: no error
+}
+#endif
 
 TEST_CASE("VolumeSources: error for a .vdb without a float grid names the grids", "[sources][errors][vdb]")
 {

@@ -5,7 +5,13 @@
 #include <openvdb/io/DelayedLoadMetadata.h>
 #include <openvdb/io/File.h>
 
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
+
 #include <cctype>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -343,5 +349,30 @@ LoadedVolume sparseVolume(openvdb::FloatGrid::Ptr grid, const VolumeRequest& req
 
 
 } // namespace sources_internal
+
+void releaseMappedPages(const std::string& path)
+{
+#ifdef __linux__
+    // The mapping is OpenVDB's (io::MappedFile shows no address): found in /proc/self/maps by
+    // the file's device and inode, so a name with spaces or newlines cannot mislead the match.
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) return;
+    std::FILE* maps = std::fopen("/proc/self/maps", "re");
+    if (!maps) return;
+    unsigned long long begin = 0, end = 0, inode = 0;
+    unsigned major = 0, minor = 0;
+    char line[4096];
+    while (std::fgets(line, sizeof line, maps)) {
+        const bool whole = std::strchr(line, '\n') != nullptr;
+        if (std::sscanf(line, "%llx-%llx %*s %*s %x:%x %llu", &begin, &end, &major, &minor, &inode) == 5
+            && inode == st.st_ino && major == major(st.st_dev) && minor == minor(st.st_dev))
+            ::madvise(reinterpret_cast<void*>(begin), std::size_t(end - begin), MADV_DONTNEED);
+        while (!whole && std::fgets(line, sizeof line, maps) && !std::strchr(line, '\n')) {} // the rest of a long name
+    }
+    std::fclose(maps);
+#else
+    (void)path;
+#endif
+}
 
 } // namespace isouq
