@@ -506,9 +506,9 @@ long mappedResidentKb(const std::string& path)
     bool ours = false;
     for (std::string line; std::getline(smaps, line);) {
         unsigned long long begin = 0, end = 0, inode = 0;
-        unsigned major = 0, minor = 0;
-        if (std::sscanf(line.c_str(), "%llx-%llx %*s %*s %x:%x %llu", &begin, &end, &major, &minor, &inode) == 5)
-            ours = inode == st.st_ino && major == major(st.st_dev) && minor == minor(st.st_dev);
+        unsigned devMajor = 0, devMinor = 0;
+        if (std::sscanf(line.c_str(), "%llx-%llx %*s %*s %x:%x %llu", &begin, &end, &devMajor, &devMinor, &inode) == 5)
+            ours = inode == st.st_ino && devMajor == major(st.st_dev) && devMinor == minor(st.st_dev);
         else if (ours && line.rfind("Rss:", 0) == 0)
             kb += std::stol(line.substr(4));
     }

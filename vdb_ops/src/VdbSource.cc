@@ -354,18 +354,19 @@ void releaseMappedPages(const std::string& path)
 {
 #ifdef __linux__
     // The mapping is OpenVDB's (io::MappedFile shows no address): found in /proc/self/maps by
-    // the file's device and inode, so a name with spaces or newlines cannot mislead the match.
+    // the file's device and inode, so a name with spaces or newlines cannot mislead the match;
+    // only read-only mappings, which hold no changes of their own to lose.
     struct stat st {};
     if (::stat(path.c_str(), &st) != 0) return;
     std::FILE* maps = std::fopen("/proc/self/maps", "re");
     if (!maps) return;
     unsigned long long begin = 0, end = 0, inode = 0;
-    unsigned major = 0, minor = 0;
-    char line[4096];
+    unsigned devMajor = 0, devMinor = 0;
+    char perms[5] = {}, line[4096];
     while (std::fgets(line, sizeof line, maps)) {
         const bool whole = std::strchr(line, '\n') != nullptr;
-        if (std::sscanf(line, "%llx-%llx %*s %*s %x:%x %llu", &begin, &end, &major, &minor, &inode) == 5
-            && inode == st.st_ino && major == major(st.st_dev) && minor == minor(st.st_dev))
+        if (std::sscanf(line, "%llx-%llx %4s %*s %x:%x %llu", &begin, &end, perms, &devMajor, &devMinor, &inode) == 6
+            && perms[1] != 'w' && inode == st.st_ino && devMajor == major(st.st_dev) && devMinor == minor(st.st_dev))
             ::madvise(reinterpret_cast<void*>(begin), std::size_t(end - begin), MADV_DONTNEED);
         while (!whole && std::fgets(line, sizeof line, maps) && !std::strchr(line, '\n')) {} // the rest of a long name
     }

@@ -117,8 +117,8 @@ private:
 LoadedVolume loadVolume(const VolumeRequest& request,
     openvdb::util::NullInterrupter* interrupter = nullptr);
 
-/// Drops this process's resident pages of the mapping that delayed loading made of @a path
-/// (VolumeRequest::delayLoad): the leaves loaded so far hold copies of their values, so a rank's
+/// Drops this process's resident pages of its read-only mappings of @a path, such as the one
+/// delayed loading makes (VolumeRequest::delayLoad): the leaves loaded so far hold copies of their values, so a rank's
 /// memory is its leaves, not also the file's pages it read them from. A leaf loaded later
 /// faults its pages in again (from the page cache); nothing else changes. Linux; elsewhere
 /// nothing.
