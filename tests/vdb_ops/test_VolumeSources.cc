@@ -522,7 +522,8 @@ TEST_CASE("VolumeSources: a delay-loaded .vdb gives back its mapped pages and st
     // mapped pages (releaseMappedPages): its memory is then its leaves, not also the file.
     TempDir dir;
     openvdb::initialize();
-    const auto truth = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(60.0f, openvdb::Vec3f(0.5f), 1.0f, 3.0f);
+    const auto truth =
+        openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(60.0f, openvdb::Vec3f(0.5f), 1.0f, 3.0f);
     truth->setName("ls");
     const std::string path = dir / "sphere.vdb";
     {

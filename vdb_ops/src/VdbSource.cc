@@ -355,7 +355,8 @@ void releaseMappedPages(const std::string& path)
 #ifdef __linux__
     // The mapping is OpenVDB's (io::MappedFile shows no address): found in /proc/self/maps by
     // the file's device and inode, so a name with spaces or newlines cannot mislead the match;
-    // only read-only mappings, which hold no changes of their own to lose.
+    // only read-only shared mappings (OpenVDB's is r--s), which hold no pages of their own to
+    // lose (a private read-only one may: relocations a loader wrote before protecting them).
     struct stat st {};
     if (::stat(path.c_str(), &st) != 0) return;
     std::FILE* maps = std::fopen("/proc/self/maps", "re");
@@ -365,8 +366,10 @@ void releaseMappedPages(const std::string& path)
     char perms[5] = {}, line[4096];
     while (std::fgets(line, sizeof line, maps)) {
         const bool whole = std::strchr(line, '\n') != nullptr;
-        if (std::sscanf(line, "%llx-%llx %4s %*s %x:%x %llu", &begin, &end, perms, &devMajor, &devMinor, &inode) == 6
-            && perms[1] != 'w' && inode == st.st_ino && devMajor == major(st.st_dev) && devMinor == minor(st.st_dev))
+        const bool ours =
+            std::sscanf(line, "%llx-%llx %4s %*s %x:%x %llu", &begin, &end, perms, &devMajor, &devMinor, &inode) == 6
+            && inode == st.st_ino && devMajor == major(st.st_dev) && devMinor == minor(st.st_dev);
+        if (ours && perms[1] != 'w' && perms[3] == 's')
             ::madvise(reinterpret_cast<void*>(begin), std::size_t(end - begin), MADV_DONTNEED);
         while (!whole && std::fgets(line, sizeof line, maps) && !std::strchr(line, '\n')) {} // the rest of a long name
     }

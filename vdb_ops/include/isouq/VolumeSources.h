@@ -117,11 +117,11 @@ private:
 LoadedVolume loadVolume(const VolumeRequest& request,
     openvdb::util::NullInterrupter* interrupter = nullptr);
 
-/// Drops this process's resident pages of its read-only mappings of @a path, such as the one
-/// delayed loading makes (VolumeRequest::delayLoad): the leaves loaded so far hold copies of their values, so a rank's
-/// memory is its leaves, not also the file's pages it read them from. A leaf loaded later
-/// faults its pages in again (from the page cache); nothing else changes. Linux; elsewhere
-/// nothing.
+/// Drops this process's resident pages of its read-only shared mappings of @a path, such as the
+/// one delayed loading makes (VolumeRequest::delayLoad): the leaves loaded so far hold copies
+/// of their values, so a rank's memory is its leaves, not also the file's pages it read them
+/// from. A leaf loaded later faults its pages in again (from the page cache); nothing else
+/// changes. Linux; elsewhere nothing.
 void releaseMappedPages(const std::string& path);
 
 class BrickPlan;  // Bricks.h
