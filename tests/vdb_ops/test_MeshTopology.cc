@@ -3,9 +3,13 @@
 #include <isouq/MeshTopology.h>
 
 #include <catch2/catch.hpp>
+#include <tbb/global_control.h>
 
+#include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
+#include <numeric>
 #include <random>
 #include <utility>
 
@@ -282,4 +286,108 @@ TEST_CASE("MeshTopology: random meshes match brute-force edge and component coun
             for (int g = 0; g < nf; ++g) samePartition &= (labels[f] == labels[g]) == (label[f] == label[g]);
         CHECK(samePartition);
     }
+}
+
+TEST_CASE("MeshTopology: a mesh of many parts and vertex ranges matches sorting and a breadth-first search "
+          "at any thread count", "[topology]")
+{
+    // 400 000 triangles and 300 000 vertices: more than one part of triangles and one range of
+    // vertices in every pass. Strips of nearby vertices (most edges used twice), a long fan
+    // across parts, repeated triangles (non-manifold edges), degenerate ones, and small islands
+    // numbered late but used early, so components are not in vertex order.
+    std::mt19937 rng(2026);
+    const std::uint32_t nv = 300000;
+    Mesh m;
+    m.positions.resize(nv);
+    for (std::uint32_t v = 0; v < nv; ++v) m.positions[v] = openvdb::Vec3s(float(v % 97), float(v % 89), float(v % 83));
+    auto near = [&](std::uint32_t a) { return std::min<std::uint32_t>(nv - 1, a + 1 + rng() % 40); };
+    for (int f = 0; f < 400000; ++f) {
+        const int kind = int(rng() % 100);
+        if (kind < 80) {
+            const std::uint32_t a = rng() % 250000;
+            m.triangles.emplace_back(a, near(a), near(a));
+        } else if (kind < 85) {
+            m.triangles.emplace_back(7, 1 + rng() % 249000, 1 + rng() % 249000); // the fan of vertex 7
+        } else if (kind < 90 && !m.triangles.empty()) {
+            m.triangles.push_back(m.triangles[rng() % m.triangles.size()]);
+        } else if (kind < 92) {
+            const std::uint32_t a = rng() % nv;
+            m.triangles.emplace_back(a, a, near(a));
+        } else {
+            const std::uint32_t island = 250000 + 5 * (rng() % 10000); // vertices island .. island + 4
+            m.triangles.emplace_back(island + rng() % 5, island + rng() % 5, island + rng() % 5);
+        }
+    }
+
+    // Edges by sorting every (lower, upper) pair.
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs;
+    for (const auto& t : m.triangles)
+        for (int c = 0; c < 3; ++c) {
+            const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+            if (a != b) pairs.emplace_back(std::min(a, b), std::max(a, b));
+        }
+    std::sort(pairs.begin(), pairs.end());
+    std::size_t edges = 0, boundary = 0, nonManifold = 0;
+    for (std::size_t i = 0, j; i < pairs.size(); i = j) {
+        for (j = i + 1; j < pairs.size() && pairs[j] == pairs[i];) ++j;
+        ++edges;
+        boundary += j - i == 1;
+        nonManifold += j - i > 2;
+    }
+    // Components by a breadth-first search over triangles sharing a vertex, started from each
+    // unlabelled triangle in order: labels in the order of the components' first triangles.
+    std::vector<std::vector<std::uint32_t>> trianglesOf(nv);
+    for (std::uint32_t f = 0; f < m.triangles.size(); ++f)
+        for (int c = 0; c < 3; ++c) trianglesOf[m.triangles[f][c]].push_back(f);
+    std::vector<std::uint32_t> expected(m.triangles.size(), ~0u);
+    std::uint32_t components = 0;
+    for (std::uint32_t f = 0; f < m.triangles.size(); ++f) {
+        if (expected[f] != ~0u) continue;
+        std::vector<std::uint32_t> queue{f};
+        expected[f] = components;
+        while (!queue.empty()) {
+            const std::uint32_t g = queue.back();
+            queue.pop_back();
+            for (int c = 0; c < 3; ++c)
+                for (std::uint32_t h : trianglesOf[m.triangles[g][c]])
+                    if (expected[h] == ~0u) expected[h] = components, queue.push_back(h);
+        }
+        ++components;
+    }
+    REQUIRE(nonManifold > 0);
+    REQUIRE(components > 1000);
+
+    const isouq::TriangleChunks chunks{m.vertexCount(), m.triangleCount(),
+        [&](std::size_t first, std::size_t count, openvdb::Vec3I* out) {
+            std::copy_n(m.triangles.begin() + std::ptrdiff_t(first), count, out);
+        }};
+    for (int threads : {1, 2, 5}) {
+        INFO(threads << " threads");
+        const tbb::global_control limit(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+        std::vector<std::uint32_t> labels, chunkLabels;
+        const auto s = measureTopology(m, &labels, true);
+        const auto c = measureTopology(chunks, &chunkLabels);
+        for (const auto& r : {s, c}) {
+            CHECK(r.edges == edges);
+            CHECK(r.boundaryEdges == boundary);
+            CHECK(r.nonManifoldEdges == nonManifold);
+            CHECK(r.components == components);
+        }
+        // Counts of differing labels (a failed vector comparison would print 400 000 numbers).
+        auto differing = [&](const std::vector<std::uint32_t>& got) {
+            if (got.size() != expected.size()) return got.size() + expected.size();
+            return std::size_t(std::inner_product(got.begin(), got.end(), expected.begin(), std::size_t(0),
+                std::plus<>(), std::not_equal_to<>()));
+        };
+        CHECK(differing(labels) == 0);
+        CHECK(differing(chunkLabels) == 0);
+        CHECK(differing(isouq::componentLabels(m)) == 0);
+    }
+
+    // An index out of range names the first such triangle, in the last part as in the first.
+    m.triangles[399990] = openvdb::Vec3I(1, 2, nv);
+    m.triangles[399995] = openvdb::Vec3I(nv + 5, 2, 3);
+    CHECK_THROWS_WITH(measureTopology(m), "triangle 399990 names vertex 300000 of 300000");
+    m.triangles[3] = openvdb::Vec3I(0, nv + 1, 2);
+    CHECK_THROWS_WITH(isouq::componentLabels(m), "triangle 3 names vertex 300001 of 300000");
 }

@@ -1,29 +1,37 @@
-// isouq: edge use counts by a bucket sort on the lower vertex index, components by union-find
-// over vertices, area and enclosed volume in double (MeshTopology.h).
+// isouq: edge use counts by a counting sort on the lower vertex index, components by union-find
+// over vertices, area and enclosed volume in double (MeshTopology.h); every pass in parallel
+// parts of the triangles, the results the same whatever the thread count.
 #include "isouq/MeshTopology.h"
 
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 
 namespace isouq {
 namespace topology_internal {
 
+constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+
 /// The triangles of a Mesh, or of a TriangleChunks (fetched a chunk at a time into a buffer):
-/// forEach(visit) calls visit(f, triangle) in order.
+/// forRows(first, last, visit) calls visit(f, triangle) for f in [first, last), in order, and may
+/// run on several threads at once.
 struct MeshTriangles {
     const Mesh& mesh;
     std::size_t vertexCount() const { return mesh.vertexCount(); }
     std::size_t count() const { return mesh.triangleCount(); }
     template <typename Visit>
-    void forEach(Visit&& visit) const
+    void forRows(std::size_t first, std::size_t last, Visit&& visit) const
     {
-        for (std::size_t f = 0; f < mesh.triangles.size(); ++f) visit(f, mesh.triangles[f]);
+        for (std::size_t f = first; f < last; ++f) visit(f, mesh.triangles[f]);
     }
 };
 
@@ -32,15 +40,32 @@ struct ChunkedTriangles {
     std::size_t vertexCount() const { return chunks.vertexCount; }
     std::size_t count() const { return chunks.triangleCount; }
     template <typename Visit>
-    void forEach(Visit&& visit) const
+    void forRows(std::size_t first, std::size_t last, Visit&& visit) const
     {
         constexpr std::size_t kChunk = 4096;
-        std::vector<openvdb::Vec3I> buffer(std::min(kChunk, chunks.triangleCount));
-        for (std::size_t first = 0; first < chunks.triangleCount; first += kChunk) {
-            const std::size_t n = std::min(kChunk, chunks.triangleCount - first);
+        std::vector<openvdb::Vec3I> buffer(std::min(kChunk, last - first));
+        for (; first < last; first += kChunk) {
+            const std::size_t n = std::min(kChunk, last - first);
             chunks.fetch(first, n, buffer.data());
             for (std::size_t i = 0; i < n; ++i) visit(first + i, buffer[i]);
         }
+    }
+};
+
+/// The triangles in at most kMaxParts parts of at least kPartRows rows, each pass over them
+/// running the parts in parallel.
+struct Parts {
+    static constexpr std::size_t kPartRows = std::size_t(1) << 15, kMaxParts = 256;
+    std::size_t rows, size, count;
+    explicit Parts(std::size_t n)
+        : rows(n), size(std::max(kPartRows, (n + kMaxParts - 1) / kMaxParts)), count((n + size - 1) / size) {}
+    std::size_t first(std::size_t p) const { return p * size; }
+    std::size_t last(std::size_t p) const { return std::min(rows, (p + 1) * size); }
+    /// body(p) for every part, in parallel.
+    template <typename Body>
+    void each(const Body& body) const
+    {
+        tbb::parallel_for(std::size_t(0), count, [&](std::size_t p) { body(p); });
     }
 };
 
@@ -48,7 +73,17 @@ template <typename Triangles>
 void checkIndices(const Triangles& triangles)
 {
     const std::size_t nv = triangles.vertexCount();
-    triangles.forEach([&](std::size_t f, const openvdb::Vec3I& t) {
+    const Parts parts(triangles.count());
+    auto bad = [nv](const openvdb::Vec3I& t) { return t[0] >= nv || t[1] >= nv || t[2] >= nv; };
+    std::vector<std::size_t> firstBad(parts.count, std::numeric_limits<std::size_t>::max());
+    parts.each([&](std::size_t p) {
+        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
+            if (bad(t)) firstBad[p] = std::min(firstBad[p], f);
+        });
+    });
+    const auto first = std::min_element(firstBad.begin(), firstBad.end());
+    if (first == firstBad.end() || *first == std::numeric_limits<std::size_t>::max()) return;
+    triangles.forRows(*first, *first + 1, [&](std::size_t f, const openvdb::Vec3I& t) { // the lowest, as a serial scan
         for (int c = 0; c < 3; ++c)
             if (t[c] >= nv)
                 throw std::invalid_argument("triangle " + std::to_string(f) + " names vertex " +
@@ -68,42 +103,73 @@ void sortBucket(std::uint32_t* first, std::uint32_t* last)
         for (std::uint32_t* j = i; j > first && j[-1] > j[0]; --j) std::swap(j[-1], j[0]);
 }
 
-/// Counts edges by use: each undirected edge (a, b), a < b, goes into the bucket of a as b
-/// (a counting sort on a); sorting each small bucket makes equal edges adjacent runs.
+/// Counts edges by use: each undirected edge (a, b), a < b, is stored as b with a's offset in
+/// its range of kRange vertices, grouped by range (a counting sort on the range, part by part);
+/// then each range, in parallel, sorts its edges by a (a counting sort on the offset), and
+/// sorting each small bucket makes equal edges adjacent runs.
 template <typename Triangles>
 void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
 {
+    constexpr std::size_t kRange = std::size_t(1) << 16; // offsets fit 16 bits
     const std::size_t nv = triangles.vertexCount();
-    std::vector<std::size_t> start(nv + 1, 0);
-    auto forEachEdge = [&](auto&& visit) {
-        triangles.forEach([&](std::size_t, const openvdb::Vec3I& t) {
+    const Parts parts(triangles.count());
+    const std::size_t ranges = (nv + kRange - 1) / kRange;
+    auto forEachEdge = [&](std::size_t p, auto&& visit) {
+        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t, const openvdb::Vec3I& t) {
             for (int c = 0; c < 3; ++c) {
                 const std::uint32_t a = t[c], b = t[(c + 1) % 3];
                 if (a != b) visit(std::min(a, b), std::max(a, b));
             }
         });
     };
-    forEachEdge([&](std::uint32_t lo, std::uint32_t) { ++start[lo + 1]; });
-    for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-    std::vector<std::uint32_t> upper(start[nv]);
-    {
-        std::vector<std::size_t> next(start.begin(), start.end() - 1);
-        forEachEdge([&](std::uint32_t lo, std::uint32_t hi) { upper[next[lo]++] = hi; });
-    }
-    for (std::size_t v = 0; v < nv; ++v) {
-        std::uint32_t* first = upper.data() + start[v];
-        std::uint32_t* last = upper.data() + start[v + 1];
-        sortBucket(first, last);
-        while (first < last) {
-            std::uint32_t* run = first + 1;
-            while (run < last && *run == *first) ++run;
-            const std::ptrdiff_t uses = run - first;
-            ++stats.edges;
-            if (uses == 1) ++stats.boundaryEdges;
-            if (uses > 2) ++stats.nonManifoldEdges;
-            first = run;
+    // at[r * parts + p]: where part p's edges of range r start.
+    std::vector<std::size_t> at(ranges * parts.count + 1, 0);
+    parts.each([&](std::size_t p) {
+        forEachEdge(p, [&](std::uint32_t lo, std::uint32_t) { ++at[lo / kRange * parts.count + p + 1]; });
+    });
+    std::partial_sum(at.begin(), at.end(), at.begin());
+    std::vector<std::uint32_t> upper(at.back());
+    std::vector<std::uint16_t> offset(at.back());
+    parts.each([&](std::size_t p) {
+        std::vector<std::size_t> next(ranges);
+        for (std::size_t r = 0; r < ranges; ++r) next[r] = at[r * parts.count + p];
+        forEachEdge(p, [&](std::uint32_t lo, std::uint32_t hi) {
+            const std::size_t i = next[lo / kRange]++;
+            upper[i] = hi;
+            offset[i] = std::uint16_t(lo % kRange);
+        });
+    });
+    struct Tally {
+        std::size_t edges = 0, boundary = 0, nonManifold = 0;
+    };
+    std::vector<Tally> tallies(ranges);
+    tbb::enumerable_thread_specific<std::pair<std::vector<std::size_t>, std::vector<std::uint32_t>>> scratch;
+    tbb::parallel_for(std::size_t(0), ranges, [&](std::size_t r) {
+        const std::size_t first = at[r * parts.count], last = at[(r + 1) * parts.count];
+        auto& [end, sorted] = scratch.local();
+        end.assign(kRange + 1, 0); // end[a + 1] counts, then end[a] is where bucket a ends
+        for (std::size_t i = first; i < last; ++i) ++end[offset[i] + 1u];
+        std::partial_sum(end.begin(), end.end(), end.begin());
+        sorted.resize(last - first);
+        for (std::size_t i = first; i < last; ++i) sorted[end[offset[i]]++] = upper[i];
+        Tally& tally = tallies[r];
+        for (std::size_t a = 0, begin = 0; a < kRange; begin = end[a++]) {
+            std::uint32_t* bucket = sorted.data() + begin;
+            std::uint32_t* const bucketEnd = sorted.data() + end[a];
+            sortBucket(bucket, bucketEnd);
+            while (bucket < bucketEnd) {
+                std::uint32_t* run = bucket + 1;
+                while (run < bucketEnd && *run == *bucket) ++run;
+                const std::ptrdiff_t uses = run - bucket;
+                ++tally.edges;
+                if (uses == 1) ++tally.boundary;
+                if (uses > 2) ++tally.nonManifold;
+                bucket = run;
+            }
         }
-    }
+    });
+    for (const Tally& t : tallies)
+        stats.edges += t.edges, stats.boundaryEdges += t.boundary, stats.nonManifoldEdges += t.nonManifold;
 }
 
 /// Area, enclosed volume (divergence theorem: the signed tetrahedra to a centre) and
@@ -129,46 +195,84 @@ void measureGeometry(const Mesh& mesh, MeshTopologyStats& stats)
     stats.degenerateTriangles = sums.degenerate;
 }
 
-/// Union-find over vertices with path halving; the smaller index becomes the root.
+/// Union-find over vertices, joined from several threads at once: a root is linked under a
+/// smaller root by compare-and-swap (retried if it stopped being a root), paths are halved by
+/// plain stores (any ancestor is a right parent, and parents only decrease), so each component's
+/// root is its smallest vertex whatever the order of the joins.
 class VertexSets {
 public:
     explicit VertexSets(std::size_t n) : mParent(n)
     {
-        for (std::size_t i = 0; i < n; ++i) mParent[i] = static_cast<std::uint32_t>(i);
+        tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) { mParent[i].store(std::uint32_t(i), kRelaxed); });
     }
     std::uint32_t find(std::uint32_t v)
     {
-        while (mParent[v] != v) v = mParent[v] = mParent[mParent[v]];
+        for (std::uint32_t p = mParent[v].load(kRelaxed); p != v; p = mParent[v].load(kRelaxed)) {
+            const std::uint32_t g = mParent[p].load(kRelaxed);
+            if (g != p) mParent[v].store(g, kRelaxed);
+            v = g;
+        }
         return v;
     }
     void join(std::uint32_t a, std::uint32_t b)
     {
-        a = find(a);
-        b = find(b);
-        if (a < b) mParent[b] = a;
-        else if (b < a) mParent[a] = b;
+        for (;;) {
+            a = find(a), b = find(b);
+            if (a == b) return;
+            if (a < b) std::swap(a, b);
+            std::uint32_t root = a;
+            if (mParent[a].compare_exchange_strong(root, b, kRelaxed)) return;
+        }
     }
 
 private:
-    std::vector<std::uint32_t> mParent;
+    static constexpr std::memory_order kRelaxed = std::memory_order_relaxed;
+    std::vector<std::atomic<std::uint32_t>> mParent;
 };
 
+/// Per triangle, its component numbered in the order of their first triangles: the roots of
+/// the triangles, then per root the first part it appears in (an atomic minimum), the roots
+/// numbered within that part in order, and the parts' counts added up in order.
 template <typename Triangles>
 std::vector<std::uint32_t> labelTriangles(const Triangles& triangles, std::size_t& components)
 {
-    VertexSets sets(triangles.vertexCount());
-    triangles.forEach([&](std::size_t, const openvdb::Vec3I& t) {
-        sets.join(t[0], t[1]);
-        sets.join(t[0], t[2]);
+    const std::size_t nv = triangles.vertexCount();
+    const Parts parts(triangles.count());
+    std::vector<std::uint32_t> labels(parts.rows); // first the root of each triangle
+    std::vector<std::atomic<std::uint32_t>> firstPart(nv);
+    {
+        VertexSets sets(nv);
+        parts.each([&](std::size_t p) {
+            triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t, const openvdb::Vec3I& t) {
+                sets.join(t[0], t[1]);
+                sets.join(t[0], t[2]);
+            });
+        });
+        tbb::parallel_for(std::size_t(0), nv, [&](std::size_t v) { firstPart[v].store(kNone, std::memory_order_relaxed); });
+        parts.each([&](std::size_t p) {
+            triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
+                const std::uint32_t root = labels[f] = sets.find(t[0]);
+                std::uint32_t seen = firstPart[root].load(std::memory_order_relaxed);
+                while (seen > p && !firstPart[root].compare_exchange_weak(seen, std::uint32_t(p), std::memory_order_relaxed)) {}
+            });
+        });
+    }
+    std::vector<std::uint32_t> local(nv, kNone); // a root's number within its first part
+    std::vector<std::size_t> before(parts.count + 1, 0);
+    parts.each([&](std::size_t p) {
+        std::uint32_t n = 0;
+        for (std::size_t f = parts.first(p); f < parts.last(p); ++f)
+            if (const std::uint32_t root = labels[f]; firstPart[root].load(std::memory_order_relaxed) == p && local[root] == kNone)
+                local[root] = n++;
+        before[p + 1] = n;
     });
-    constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-    std::vector<std::uint32_t> labelOfRoot(triangles.vertexCount(), kNone);
-    std::vector<std::uint32_t> labels(triangles.count());
-    components = 0;
-    triangles.forEach([&](std::size_t f, const openvdb::Vec3I& t) {
-        std::uint32_t& label = labelOfRoot[sets.find(t[0])];
-        if (label == kNone) label = static_cast<std::uint32_t>(components++);
-        labels[f] = label;
+    std::partial_sum(before.begin(), before.end(), before.begin());
+    components = before.back();
+    parts.each([&](std::size_t p) {
+        for (std::size_t f = parts.first(p); f < parts.last(p); ++f) {
+            const std::uint32_t root = labels[f];
+            labels[f] = std::uint32_t(before[firstPart[root].load(std::memory_order_relaxed)] + local[root]);
+        }
     });
     return labels;
 }

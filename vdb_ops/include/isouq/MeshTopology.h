@@ -99,7 +99,7 @@ void addTriangleGeometry(const PositionOf& position, const openvdb::Vec3I* first
 
 /// Triangles that are not stored as one array of a Mesh (a rank's piece in its own vertex
 /// numbering, SPEC §10 "MPI"): fetch(first, count, out) writes triangles first..first+count-1
-/// with corners in 0..vertexCount-1.
+/// with corners in 0..vertexCount-1, and is called from several threads at once.
 struct TriangleChunks {
     std::size_t vertexCount = 0, triangleCount = 0;
     std::function<void(std::size_t first, std::size_t count, openvdb::Vec3I* out)> fetch;
