@@ -91,22 +91,42 @@ void checkIndices(const Triangles& triangles)
     });
 }
 
-/// Sorts the upper ends of the edges that share one lower end: short runs (the usual 2-4
-/// edges) by insertion, long fans by std::sort.
-void sortBucket(std::uint32_t* first, std::uint32_t* last)
+/// Edges counted by their uses (SPEC §8 `boundary_edges`, `non_manifold_edges`).
+struct EdgeTally {
+    std::size_t edges = 0, boundary = 0, nonManifold = 0;
+    void add(std::size_t uses) { ++edges, boundary += uses == 1, nonManifold += uses > 2; }
+};
+
+/// Tallies the upper ends of the edges that share one lower end: a long fan sorted into runs of
+/// equal ends; the usual few (each edge twice in a closed mesh) by comparing each end with the
+/// later ones without branches, blanking the repeats with 0 (an upper end is never 0).
+void tallyBucket(std::uint32_t* first, std::uint32_t* last, EdgeTally& tally)
 {
     if (last - first > 16) {
         std::sort(first, last);
+        for (std::uint32_t* run = first; first < last; first = run) {
+            while (run < last && *run == *first) ++run;
+            tally.add(std::size_t(run - first));
+        }
         return;
     }
-    for (std::uint32_t* i = first + 1; i < last; ++i)
-        for (std::uint32_t* j = i; j > first && j[-1] > j[0]; --j) std::swap(j[-1], j[0]);
+    for (; first < last; ++first) {
+        const std::uint32_t b = *first;
+        if (b == 0) continue;
+        std::size_t uses = 1;
+        for (std::uint32_t* j = first + 1; j < last; ++j) {
+            const bool same = *j == b;
+            uses += same;
+            *j = same ? 0 : *j;
+        }
+        tally.add(uses);
+    }
 }
 
 /// Counts edges by use: each undirected edge (a, b), a < b, is stored as b with a's offset in
 /// its range of kRange vertices, grouped by range (a counting sort on the range, part by part);
-/// then each range, in parallel, sorts its edges by a (a counting sort on the offset), and
-/// sorting each small bucket makes equal edges adjacent runs.
+/// then each range, in parallel, sorts its edges by a (a counting sort on the offset) and
+/// tallies each a's bucket.
 template <typename Triangles>
 void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
 {
@@ -139,10 +159,7 @@ void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
             offset[i] = std::uint16_t(lo % kRange);
         });
     });
-    struct Tally {
-        std::size_t edges = 0, boundary = 0, nonManifold = 0;
-    };
-    std::vector<Tally> tallies(ranges);
+    std::vector<EdgeTally> tallies(ranges);
     tbb::enumerable_thread_specific<std::pair<std::vector<std::size_t>, std::vector<std::uint32_t>>> scratch;
     tbb::parallel_for(std::size_t(0), ranges, [&](std::size_t r) {
         const std::size_t first = at[r * parts.count], last = at[(r + 1) * parts.count];
@@ -152,23 +169,12 @@ void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
         std::partial_sum(end.begin(), end.end(), end.begin());
         sorted.resize(last - first);
         for (std::size_t i = first; i < last; ++i) sorted[end[offset[i]]++] = upper[i];
-        Tally& tally = tallies[r];
-        for (std::size_t a = 0, begin = 0; a < kRange; begin = end[a++]) {
-            std::uint32_t* bucket = sorted.data() + begin;
-            std::uint32_t* const bucketEnd = sorted.data() + end[a];
-            sortBucket(bucket, bucketEnd);
-            while (bucket < bucketEnd) {
-                std::uint32_t* run = bucket + 1;
-                while (run < bucketEnd && *run == *bucket) ++run;
-                const std::ptrdiff_t uses = run - bucket;
-                ++tally.edges;
-                if (uses == 1) ++tally.boundary;
-                if (uses > 2) ++tally.nonManifold;
-                bucket = run;
-            }
-        }
+        EdgeTally tally; // a local, not tallies[r]: neighbouring ranges share a cache line
+        for (std::size_t a = 0, begin = 0; a < kRange; begin = end[a++])
+            tallyBucket(sorted.data() + begin, sorted.data() + end[a], tally);
+        tallies[r] = tally;
     });
-    for (const Tally& t : tallies)
+    for (const EdgeTally& t : tallies)
         stats.edges += t.edges, stats.boundaryEdges += t.boundary, stats.nonManifoldEdges += t.nonManifold;
 }
 
