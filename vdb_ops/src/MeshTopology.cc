@@ -12,6 +12,7 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -52,6 +53,14 @@ struct ChunkedTriangles {
     }
 };
 
+/// @a n values of T left unset (each pass writes before it reads): no serial zero fill, and
+/// the pages are first touched by the pass that writes them, on its threads.
+template <typename T>
+std::unique_ptr<T[]> unsetArray(std::size_t n)
+{
+    return std::unique_ptr<T[]>(new T[n]);
+}
+
 /// The triangles in at most kMaxParts parts of at least kPartRows rows, each pass over them
 /// running the parts in parallel.
 struct Parts {
@@ -68,28 +77,6 @@ struct Parts {
         tbb::parallel_for(std::size_t(0), count, [&](std::size_t p) { body(p); });
     }
 };
-
-template <typename Triangles>
-void checkIndices(const Triangles& triangles)
-{
-    const std::size_t nv = triangles.vertexCount();
-    const Parts parts(triangles.count());
-    auto bad = [nv](const openvdb::Vec3I& t) { return t[0] >= nv || t[1] >= nv || t[2] >= nv; };
-    std::vector<std::size_t> firstBad(parts.count, std::numeric_limits<std::size_t>::max());
-    parts.each([&](std::size_t p) {
-        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
-            if (bad(t)) firstBad[p] = std::min(firstBad[p], f);
-        });
-    });
-    const auto first = std::min_element(firstBad.begin(), firstBad.end());
-    if (first == firstBad.end() || *first == std::numeric_limits<std::size_t>::max()) return;
-    triangles.forRows(*first, *first + 1, [&](std::size_t f, const openvdb::Vec3I& t) { // the lowest, as a serial scan
-        for (int c = 0; c < 3; ++c)
-            if (t[c] >= nv)
-                throw std::invalid_argument("triangle " + std::to_string(f) + " names vertex " +
-                    std::to_string(t[c]) + " of " + std::to_string(nv));
-    });
-}
 
 /// Edges counted by their uses (SPEC §8 `boundary_edges`, `non_manifold_edges`).
 struct EdgeTally {
@@ -124,59 +111,79 @@ void tallyBucket(std::uint32_t* first, std::uint32_t* last, EdgeTally& tally)
 }
 
 /// Counts edges by use: each undirected edge (a, b), a < b, is stored as b with a's offset in
-/// its range of kRange vertices, grouped by range (a counting sort on the range, part by part);
-/// then each range, in parallel, sorts its edges by a (a counting sort on the offset) and
-/// tallies each a's bucket.
-template <typename Triangles>
-void countEdges(const Triangles& triangles, MeshTopologyStats& stats)
-{
-    constexpr std::size_t kRange = std::size_t(1) << 16; // offsets fit 16 bits
-    const std::size_t nv = triangles.vertexCount();
-    const Parts parts(triangles.count());
-    const std::size_t ranges = (nv + kRange - 1) / kRange;
-    auto forEachEdge = [&](std::size_t p, auto&& visit) {
-        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t, const openvdb::Vec3I& t) {
-            for (int c = 0; c < 3; ++c) {
-                const std::uint32_t a = t[c], b = t[(c + 1) % 3];
-                if (a != b) visit(std::min(a, b), std::max(a, b));
-            }
-        });
-    };
-    // at[r * parts + p]: where part p's edges of range r start.
-    std::vector<std::size_t> at(ranges * parts.count + 1, 0);
-    parts.each([&](std::size_t p) {
-        forEachEdge(p, [&](std::uint32_t lo, std::uint32_t) { ++at[lo / kRange * parts.count + p + 1]; });
-    });
-    std::partial_sum(at.begin(), at.end(), at.begin());
-    std::vector<std::uint32_t> upper(at.back());
-    std::vector<std::uint16_t> offset(at.back());
-    parts.each([&](std::size_t p) {
-        std::vector<std::size_t> next(ranges);
-        for (std::size_t r = 0; r < ranges; ++r) next[r] = at[r * parts.count + p];
-        forEachEdge(p, [&](std::uint32_t lo, std::uint32_t hi) {
+/// its range of kRange vertices, grouped by range (a counting sort on the range: count() and
+/// place() part by part); then tally() has each range, in parallel, sort its edges by a (a
+/// counting sort on the offset) and tally each a's bucket.
+class EdgeCounter {
+public:
+    EdgeCounter(std::size_t vertices, const Parts& parts)
+        : mParts(parts.count), mRanges((vertices + kRange - 1) / kRange), mAt(mRanges * mParts + 1, 0) {}
+
+    /// Pass 1, part @a p's triangle @a t.
+    void count(std::size_t p, const openvdb::Vec3I& t)
+    {
+        forEachEdge(t, [&](std::uint32_t lo, std::uint32_t) { ++mAt[lo / kRange * mParts + p + 1]; });
+    }
+    /// Between the passes.
+    void allocate()
+    {
+        std::partial_sum(mAt.begin(), mAt.end(), mAt.begin()); // mAt[r * parts + p]: part p's first edge of range r
+        mUpper = unsetArray<std::uint32_t>(mAt.back());
+        mOffset = unsetArray<std::uint16_t>(mAt.back());
+    }
+    /// Pass 2: where part @a p's next edge of each range goes.
+    std::vector<std::size_t> cursor(std::size_t p) const
+    {
+        std::vector<std::size_t> next(mRanges);
+        for (std::size_t r = 0; r < mRanges; ++r) next[r] = mAt[r * mParts + p];
+        return next;
+    }
+    void place(std::vector<std::size_t>& next, const openvdb::Vec3I& t)
+    {
+        forEachEdge(t, [&](std::uint32_t lo, std::uint32_t hi) {
             const std::size_t i = next[lo / kRange]++;
-            upper[i] = hi;
-            offset[i] = std::uint16_t(lo % kRange);
+            mUpper[i] = hi;
+            mOffset[i] = std::uint16_t(lo % kRange);
         });
-    });
-    std::vector<EdgeTally> tallies(ranges);
-    tbb::enumerable_thread_specific<std::pair<std::vector<std::size_t>, std::vector<std::uint32_t>>> scratch;
-    tbb::parallel_for(std::size_t(0), ranges, [&](std::size_t r) {
-        const std::size_t first = at[r * parts.count], last = at[(r + 1) * parts.count];
-        auto& [end, sorted] = scratch.local();
-        end.assign(kRange + 1, 0); // end[a + 1] counts, then end[a] is where bucket a ends
-        for (std::size_t i = first; i < last; ++i) ++end[offset[i] + 1u];
-        std::partial_sum(end.begin(), end.end(), end.begin());
-        sorted.resize(last - first);
-        for (std::size_t i = first; i < last; ++i) sorted[end[offset[i]]++] = upper[i];
-        EdgeTally tally; // a local, not tallies[r]: neighbouring ranges share a cache line
-        for (std::size_t a = 0, begin = 0; a < kRange; begin = end[a++])
-            tallyBucket(sorted.data() + begin, sorted.data() + end[a], tally);
-        tallies[r] = tally;
-    });
-    for (const EdgeTally& t : tallies)
-        stats.edges += t.edges, stats.boundaryEdges += t.boundary, stats.nonManifoldEdges += t.nonManifold;
-}
+    }
+    EdgeTally tally()
+    {
+        std::vector<EdgeTally> tallies(mRanges);
+        tbb::enumerable_thread_specific<std::pair<std::vector<std::size_t>, std::vector<std::uint32_t>>> scratch;
+        tbb::parallel_for(std::size_t(0), mRanges, [&](std::size_t r) {
+            const std::size_t first = mAt[r * mParts], last = mAt[(r + 1) * mParts];
+            auto& [end, sorted] = scratch.local();
+            end.assign(kRange + 1, 0); // end[a + 1] counts, then end[a] is where bucket a ends
+            for (std::size_t i = first; i < last; ++i) ++end[mOffset[i] + 1u];
+            std::partial_sum(end.begin(), end.end(), end.begin());
+            sorted.resize(last - first);
+            for (std::size_t i = first; i < last; ++i) sorted[end[mOffset[i]]++] = mUpper[i];
+            EdgeTally tally; // a local, not tallies[r]: neighbouring ranges share a cache line
+            for (std::size_t a = 0, begin = 0; a < kRange; begin = end[a++])
+                tallyBucket(sorted.data() + begin, sorted.data() + end[a], tally);
+            tallies[r] = tally;
+        });
+        EdgeTally sum;
+        for (const EdgeTally& t : tallies)
+            sum.edges += t.edges, sum.boundary += t.boundary, sum.nonManifold += t.nonManifold;
+        return sum;
+    }
+
+private:
+    static constexpr std::size_t kRange = std::size_t(1) << 16; // offsets fit 16 bits
+    template <typename Visit>
+    static void forEachEdge(const openvdb::Vec3I& t, const Visit& visit)
+    {
+        for (int c = 0; c < 3; ++c) {
+            const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+            if (a != b) visit(std::min(a, b), std::max(a, b));
+        }
+    }
+    std::size_t mParts, mRanges;
+    std::vector<std::size_t> mAt;
+    std::unique_ptr<std::uint32_t[]> mUpper;
+    std::unique_ptr<std::uint16_t[]> mOffset;
+};
 
 /// Area, enclosed volume (divergence theorem: the signed tetrahedra to a centre) and
 /// degenerate triangles, in double.
@@ -207,7 +214,7 @@ void measureGeometry(const Mesh& mesh, MeshTopologyStats& stats)
 /// root is its smallest vertex whatever the order of the joins.
 class VertexSets {
 public:
-    explicit VertexSets(std::size_t n) : mParent(n)
+    explicit VertexSets(std::size_t n) : mSize(n), mParent(unsetArray<std::atomic<std::uint32_t>>(n))
     {
         tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) { mParent[i].store(std::uint32_t(i), kRelaxed); });
     }
@@ -220,6 +227,7 @@ public:
         }
         return v;
     }
+    std::size_t size() const { return mSize; }
     void join(std::uint32_t a, std::uint32_t b)
     {
         for (;;) {
@@ -233,37 +241,29 @@ public:
 
 private:
     static constexpr std::memory_order kRelaxed = std::memory_order_relaxed;
-    std::vector<std::atomic<std::uint32_t>> mParent;
+    std::size_t mSize;
+    std::unique_ptr<std::atomic<std::uint32_t>[]> mParent;
 };
 
-/// Per triangle, its component numbered in the order of their first triangles: the roots of
-/// the triangles, then per root the first part it appears in (an atomic minimum), the roots
-/// numbered within that part in order, and the parts' counts added up in order.
-template <typename Triangles>
-std::vector<std::uint32_t> labelTriangles(const Triangles& triangles, std::size_t& components)
+/// Per triangle, its component numbered in the order of their first triangles, from each
+/// triangle's first corner in @a labels (replaced): the roots of the triangles, then per root the
+/// first part it appears in (an atomic minimum), the roots numbered within that part in order,
+/// and the parts' counts added up in order. Returns the number of components.
+std::size_t numberComponents(VertexSets& sets, const Parts& parts, std::vector<std::uint32_t>& labels)
 {
-    const std::size_t nv = triangles.vertexCount();
-    const Parts parts(triangles.count());
-    std::vector<std::uint32_t> labels(parts.rows); // first the root of each triangle
-    std::vector<std::atomic<std::uint32_t>> firstPart(nv);
-    {
-        VertexSets sets(nv);
-        parts.each([&](std::size_t p) {
-            triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t, const openvdb::Vec3I& t) {
-                sets.join(t[0], t[1]);
-                sets.join(t[0], t[2]);
-            });
-        });
-        tbb::parallel_for(std::size_t(0), nv, [&](std::size_t v) { firstPart[v].store(kNone, std::memory_order_relaxed); });
-        parts.each([&](std::size_t p) {
-            triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
-                const std::uint32_t root = labels[f] = sets.find(t[0]);
-                std::uint32_t seen = firstPart[root].load(std::memory_order_relaxed);
-                while (seen > p && !firstPart[root].compare_exchange_weak(seen, std::uint32_t(p), std::memory_order_relaxed)) {}
-            });
-        });
-    }
-    std::vector<std::uint32_t> local(nv, kNone); // a root's number within its first part
+    const auto firstPart = unsetArray<std::atomic<std::uint32_t>>(sets.size());
+    const auto local = unsetArray<std::uint32_t>(sets.size()); // a root's number within its first part
+    tbb::parallel_for(std::size_t(0), sets.size(), [&](std::size_t v) {
+        firstPart[v].store(kNone, std::memory_order_relaxed);
+        local[v] = kNone;
+    });
+    parts.each([&](std::size_t p) {
+        for (std::size_t f = parts.first(p); f < parts.last(p); ++f) {
+            const std::uint32_t root = labels[f] = sets.find(labels[f]);
+            std::uint32_t seen = firstPart[root].load(std::memory_order_relaxed);
+            while (seen > p && !firstPart[root].compare_exchange_weak(seen, std::uint32_t(p), std::memory_order_relaxed)) {}
+        }
+    });
     std::vector<std::size_t> before(parts.count + 1, 0);
     parts.each([&](std::size_t p) {
         std::uint32_t n = 0;
@@ -273,29 +273,67 @@ std::vector<std::uint32_t> labelTriangles(const Triangles& triangles, std::size_
         before[p + 1] = n;
     });
     std::partial_sum(before.begin(), before.end(), before.begin());
-    components = before.back();
     parts.each([&](std::size_t p) {
         for (std::size_t f = parts.first(p); f < parts.last(p); ++f) {
             const std::uint32_t root = labels[f];
             labels[f] = std::uint32_t(before[firstPart[root].load(std::memory_order_relaxed)] + local[root]);
         }
     });
-    return labels;
+    return before.back();
 }
 
-/// Edges and components, and the geometry when @a mesh is given.
+/// Edges (when @a edges) and components, and the geometry when @a mesh is given, in two passes
+/// over the triangles (a TriangleChunks fetches each twice): the first checks indices, counts
+/// edges per range and keeps each triangle's first corner, the second places the edges and joins
+/// the corners' sets; then the edge tally, the component numbering and the geometry side by side.
 template <typename Triangles>
-MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>* labels, const Mesh* mesh)
+MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>* labels, const Mesh* mesh, bool edges)
 {
-    checkIndices(triangles);
+    const std::size_t nv = triangles.vertexCount();
+    const Parts parts(triangles.count());
+    EdgeCounter counter(edges ? nv : 0, parts);
+    std::vector<std::uint32_t> corner(parts.rows); // each triangle's first corner, then its component
+    std::vector<std::size_t> firstBad(parts.count, std::numeric_limits<std::size_t>::max());
+    parts.each([&](std::size_t p) {
+        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
+            if (t[0] >= nv || t[1] >= nv || t[2] >= nv) {
+                firstBad[p] = std::min(firstBad[p], f);
+                return;
+            }
+            if (edges) counter.count(p, t);
+            corner[f] = t[0];
+        });
+    });
+    if (const std::size_t f = std::accumulate(firstBad.begin(), firstBad.end(), parts.rows,
+            [](std::size_t a, std::size_t b) { return std::min(a, b); });
+        f < parts.rows) {
+        triangles.forRows(f, f + 1, [&](std::size_t, const openvdb::Vec3I& t) { // the lowest, as a serial scan
+            const std::uint32_t v = t[0] >= nv ? t[0] : t[1] >= nv ? t[1] : t[2];
+            throw std::invalid_argument("triangle " + std::to_string(f) + " names vertex " + std::to_string(v) +
+                " of " + std::to_string(nv));
+        });
+    }
+    if (edges) counter.allocate();
+    VertexSets sets(nv);
+    parts.each([&](std::size_t p) {
+        std::vector<std::size_t> next = edges ? counter.cursor(p) : std::vector<std::size_t>();
+        triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t, const openvdb::Vec3I& t) {
+            if (edges) counter.place(next, t);
+            sets.join(t[0], t[1]);
+            sets.join(t[0], t[2]);
+        });
+    });
     MeshTopologyStats stats;
-    // Three independent passes writing disjoint fields of stats.
-    tbb::parallel_invoke([&] { countEdges(triangles, stats); },
+    // Three independent steps writing disjoint fields of stats.
+    tbb::parallel_invoke(
         [&] {
-            std::vector<std::uint32_t> l = labelTriangles(triangles, stats.components);
-            if (labels) *labels = std::move(l);
+            if (!edges) return;
+            const EdgeTally tally = counter.tally();
+            stats.edges = tally.edges, stats.boundaryEdges = tally.boundary, stats.nonManifoldEdges = tally.nonManifold;
         },
+        [&] { stats.components = numberComponents(sets, parts, corner); },
         [&] { if (mesh) measureGeometry(*mesh, stats); });
+    if (labels) *labels = std::move(corner);
     return stats;
 }
 
@@ -305,20 +343,19 @@ MeshTopologyStats measureTopology(const Mesh& mesh) { return measureTopology(mes
 
 MeshTopologyStats measureTopology(const Mesh& mesh, std::vector<std::uint32_t>* labels, bool geometry)
 {
-    return topology_internal::measure(topology_internal::MeshTriangles{mesh}, labels, geometry ? &mesh : nullptr);
+    return topology_internal::measure(topology_internal::MeshTriangles{mesh}, labels, geometry ? &mesh : nullptr, true);
 }
 
 MeshTopologyStats measureTopology(const TriangleChunks& triangles, std::vector<std::uint32_t>* labels)
 {
-    return topology_internal::measure(topology_internal::ChunkedTriangles{triangles}, labels, nullptr);
+    return topology_internal::measure(topology_internal::ChunkedTriangles{triangles}, labels, nullptr, true);
 }
 
 std::vector<std::uint32_t> componentLabels(const Mesh& mesh)
 {
-    const topology_internal::MeshTriangles triangles{mesh};
-    topology_internal::checkIndices(triangles);
-    std::size_t components = 0;
-    return topology_internal::labelTriangles(triangles, components);
+    std::vector<std::uint32_t> labels;
+    topology_internal::measure(topology_internal::MeshTriangles{mesh}, &labels, nullptr, false);
+    return labels;
 }
 
 std::vector<std::size_t> componentTriangleCounts(const std::vector<std::uint32_t>& labels)
