@@ -12,6 +12,8 @@
 #include <isouq/MeshIO.h>
 #include <isouq/MeshTopology.h>
 
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -280,9 +282,14 @@ LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& wh
     LocalPiece out{Runs(where.vertexBegin, ranks.rank(), size), piece.vertexCount(), {}, {}};
     const Runs& runs = out.runs;
     std::vector<std::uint32_t>& ghosts = out.ghosts;
-    for (const openvdb::Vec3I& t : piece.triangles)
-        for (int c = 0; c < 3; ++c)
-            if (runs.runOf(std::uint32_t(t[c])) < 0) ghosts.push_back(t[c]);
+    tbb::enumerable_thread_specific<std::vector<std::uint32_t>> found; // sorted below: any order
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, piece.triangles.size()), [&](const auto& range) {
+        std::vector<std::uint32_t>& mine = found.local();
+        for (std::size_t f = range.begin(); f < range.end(); ++f)
+            for (int c = 0; c < 3; ++c)
+                if (runs.runOf(std::uint32_t(piece.triangles[f][c])) < 0) mine.push_back(piece.triangles[f][c]);
+    });
+    for (const std::vector<std::uint32_t>& mine : found) ghosts.insert(ghosts.end(), mine.begin(), mine.end());
     std::sort(ghosts.begin(), ghosts.end());
     ghosts.erase(std::unique(ghosts.begin(), ghosts.end()), ghosts.end());
     std::vector<Words> wanted(static_cast<std::size_t>(size));
@@ -365,39 +372,52 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
         const auto* hidden = piece.vertexAttributes.find<std::uint8_t>(col::kHidden);
         if (nLocal > 0 && (!ei || !ej || !ek || !ax))
             throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
-        for (std::size_t v = 0; v < nLocal; ++v) {
-            const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
-            const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
-            if (hidden && (*hidden)[v]) {
-                shared[v] = a != 255;
-                continue;
-            }
-            bool other = false;
-            if ((e[a1] & 7) == 0 || (e[a2] & 7) == 0) // else its four cells are in its block
-                for (int d = 0; d < 4 && !other; ++d) {
-                    openvdb::Coord c = e;
-                    c[a1] -= d & 1;
-                    c[a2] -= d >> 1;
-                    const int p = plan.pieceOfCell(c);
-                    other = p >= 0 && p != rank;
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nLocal), [&](const auto& range) {
+            for (std::size_t v = range.begin(); v < range.end(); ++v) {
+                const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
+                const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
+                if (hidden && (*hidden)[v]) {
+                    shared[v] = a != 255;
+                    continue;
                 }
-            shared[v] = other;
-        }
+                bool other = false;
+                if ((e[a1] & 7) == 0 || (e[a2] & 7) == 0) // else its four cells are in its block
+                    for (int d = 0; d < 4 && !other; ++d) {
+                        openvdb::Coord c = e;
+                        c[a1] -= d & 1;
+                        c[a2] -= d >> 1;
+                        const int p = plan.pieceOfCell(c);
+                        other = p >= 0 && p != rank;
+                    }
+                shared[v] = other;
+            }
+        });
     }
     MeshTopologyStats topo;
     std::vector<std::uint32_t> labels;
     ranks.step([&] { topo = measureTopology(local.triangles(piece), &labels); });
-    // Edges with both ends shared: counted on rank 0 over all ranks instead of here.
-    std::vector<std::pair<std::uint64_t, std::uint64_t>> sharedEdges;
-    Words componentPairs; // (global vertex, local component) of the shared vertices used
-    for (std::size_t f = 0; f < piece.triangles.size(); ++f) {
-        const openvdb::Vec3I& t = piece.triangles[f]; // rows of the whole mesh
-        for (int c = 0; c < 3; ++c) {
-            const std::uint64_t a = t[c], b = t[(c + 1) % 3];
-            const bool sharedA = shared[local.localOf(std::uint32_t(a))], sharedB = shared[local.localOf(std::uint32_t(b))];
-            if (sharedA) componentPairs.insert(componentPairs.end(), {a, labels[f]});
-            if (a != b && sharedA && sharedB) sharedEdges.emplace_back(std::min(a, b), std::max(a, b));
+    // Edges with both ends shared: counted on rank 0 over all ranks instead of here. Both lists
+    // are found in parallel and sorted later (here, or on rank 0), so their order is free.
+    using Edge = std::pair<std::uint64_t, std::uint64_t>;
+    tbb::enumerable_thread_specific<std::pair<std::vector<Edge>, Words>> found;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, piece.triangles.size()), [&](const auto& range) {
+        auto& [edges, pairs] = found.local();
+        for (std::size_t f = range.begin(); f < range.end(); ++f) {
+            const openvdb::Vec3I& t = piece.triangles[f]; // rows of the whole mesh
+            bool isShared[3];
+            for (int c = 0; c < 3; ++c) isShared[c] = shared[local.localOf(std::uint32_t(t[c]))];
+            for (int c = 0; c < 3; ++c) {
+                const std::uint64_t a = t[c], b = t[(c + 1) % 3];
+                if (isShared[c]) pairs.insert(pairs.end(), {a, labels[f]});
+                if (a != b && isShared[c] && isShared[(c + 1) % 3]) edges.emplace_back(std::min(a, b), std::max(a, b));
+            }
         }
+    });
+    std::vector<Edge> sharedEdges;
+    Words componentPairs; // (global vertex, local component) of the shared vertices used
+    for (const auto& [edges, pairs] : found) {
+        sharedEdges.insert(sharedEdges.end(), edges.begin(), edges.end());
+        componentPairs.insert(componentPairs.end(), pairs.begin(), pairs.end());
     }
     std::sort(sharedEdges.begin(), sharedEdges.end());
     Words edgeUses; // (lo, hi, uses)
