@@ -367,7 +367,8 @@ TEST_CASE("MeshTopology: a mesh of many parts and vertex ranges matches sorting 
         std::vector<std::uint32_t> labels, chunkLabels;
         const auto s = measureTopology(m, &labels, true);
         const auto c = measureTopology(chunks, &chunkLabels);
-        for (const auto& r : {s, c}) {
+        const auto counted = measureTopology(m); // no labels: components counted, not numbered
+        for (const auto& r : {s, c, counted}) {
             CHECK(r.edges == edges);
             CHECK(r.boundaryEdges == boundary);
             CHECK(r.nonManifoldEdges == nonManifold);

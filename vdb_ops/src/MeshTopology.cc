@@ -3,14 +3,17 @@
 // parts of the triangles, the results the same whatever the thread count.
 #include "isouq/MeshTopology.h"
 
+#include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <numeric>
@@ -113,7 +116,7 @@ void tallyBucket(std::uint32_t* first, std::uint32_t* last, EdgeTally& tally)
 /// Counts edges by use: each undirected edge (a, b), a < b, is stored as b with a's offset in
 /// its range of kRange vertices, grouped by range (a counting sort on the range: count() and
 /// place() part by part); then tally() has each range, in parallel, sort its edges by a (a
-/// counting sort on the offset) and tally each a's bucket.
+/// counting sort on the offset) and tally each a's bucket, and frees the edges.
 class EdgeCounter {
 public:
     EdgeCounter(std::size_t vertices, const Parts& parts)
@@ -163,6 +166,8 @@ public:
                 tallyBucket(sorted.data() + begin, sorted.data() + end[a], tally);
             tallies[r] = tally;
         });
+        mUpper.reset();
+        mOffset.reset();
         EdgeTally sum;
         for (const EdgeTally& t : tallies)
             sum.edges += t.edges, sum.boundary += t.boundary, sum.nonManifold += t.nonManifold;
@@ -282,17 +287,33 @@ std::size_t numberComponents(VertexSets& sets, const Parts& parts, std::vector<s
     return before.back();
 }
 
+/// The components of the sets: the roots among the vertices that triangles use (a root is the
+/// smallest vertex of its set, so used itself).
+std::size_t countComponents(VertexSets& sets, const std::atomic<bool>* used)
+{
+    return tbb::parallel_reduce(tbb::blocked_range<std::size_t>(0, sets.size()), std::size_t(0),
+        [&](const tbb::blocked_range<std::size_t>& range, std::size_t n) {
+            for (std::size_t v = range.begin(); v < range.end(); ++v)
+                n += used[v].load(std::memory_order_relaxed) && sets.find(std::uint32_t(v)) == v;
+            return n;
+        },
+        std::plus<>());
+}
+
 /// Edges (when @a edges) and components, and the geometry when @a mesh is given, in two passes
 /// over the triangles (a TriangleChunks fetches each twice): the first checks indices, counts
-/// edges per range and keeps each triangle's first corner, the second places the edges and joins
-/// the corners' sets; then the edge tally, the component numbering and the geometry side by side.
+/// edges per range and keeps each triangle's first corner for @a labels (else marks its corners used),
+/// the second places the edges and joins the corners' sets; then the edge tally, and the
+/// components (numbered, or counted) beside the geometry.
 template <typename Triangles>
 MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>* labels, const Mesh* mesh, bool edges)
 {
     const std::size_t nv = triangles.vertexCount();
     const Parts parts(triangles.count());
     EdgeCounter counter(edges ? nv : 0, parts);
-    std::vector<std::uint32_t> corner(parts.rows); // each triangle's first corner, then its component
+    std::vector<std::uint32_t> corner(labels ? parts.rows : 0); // each triangle's first corner, then its component
+    const auto used = unsetArray<std::atomic<bool>>(labels ? 0 : nv);
+    if (!labels) tbb::parallel_for(std::size_t(0), nv, [&](std::size_t v) { used[v].store(false, std::memory_order_relaxed); });
     std::vector<std::size_t> firstBad(parts.count, std::numeric_limits<std::size_t>::max());
     parts.each([&](std::size_t p) {
         triangles.forRows(parts.first(p), parts.last(p), [&](std::size_t f, const openvdb::Vec3I& t) {
@@ -301,7 +322,9 @@ MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>
                 return;
             }
             if (edges) counter.count(p, t);
-            corner[f] = t[0];
+            if (labels) corner[f] = t[0];
+            else
+                for (int c = 0; c < 3; ++c) used[t[c]].store(true, std::memory_order_relaxed);
         });
     });
     if (const std::size_t f = std::accumulate(firstBad.begin(), firstBad.end(), parts.rows,
@@ -324,14 +347,13 @@ MeshTopologyStats measure(const Triangles& triangles, std::vector<std::uint32_t>
         });
     });
     MeshTopologyStats stats;
-    // Three independent steps writing disjoint fields of stats.
+    if (edges) { // first, so the edges are freed before the numbering allocates (a lower peak)
+        const EdgeTally tally = counter.tally();
+        stats.edges = tally.edges, stats.boundaryEdges = tally.boundary, stats.nonManifoldEdges = tally.nonManifold;
+    }
+    // Two independent steps writing disjoint fields of stats.
     tbb::parallel_invoke(
-        [&] {
-            if (!edges) return;
-            const EdgeTally tally = counter.tally();
-            stats.edges = tally.edges, stats.boundaryEdges = tally.boundary, stats.nonManifoldEdges = tally.nonManifold;
-        },
-        [&] { stats.components = numberComponents(sets, parts, corner); },
+        [&] { stats.components = labels ? numberComponents(sets, parts, corner) : countComponents(sets, used.get()); },
         [&] { if (mesh) measureGeometry(*mesh, stats); });
     if (labels) *labels = std::move(corner);
     return stats;
