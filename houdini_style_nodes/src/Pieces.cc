@@ -125,7 +125,7 @@ struct Runs {
     int runOf(std::uint64_t g) const
     {
         for (std::size_t r = 0; r < first.size(); ++r)
-            if (g >= first[r] && g < last[r]) return int(r);
+            if (g - first[r] < last[r] - first[r]) return int(r); // first <= g < last, unsigned
         return -1;
     }
     std::size_t localOf(std::uint64_t g, int run) const { return local[std::size_t(run)] + std::size_t(g - first[std::size_t(run)]); }
@@ -373,6 +373,18 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
         if (nLocal > 0 && (!ei || !ej || !ek || !ax))
             throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nLocal), [&](const auto& range) {
+            // The pieces of the last four blocks looked up: a block's vertices follow each other.
+            std::array<std::pair<openvdb::Coord, int>, 4> recent;
+            recent.fill({openvdb::Coord::max(), -1});
+            std::size_t replace = 0;
+            const auto pieceOfCell = [&](const openvdb::Coord& cell) {
+                const openvdb::Coord block = cell >> 3;
+                for (const auto& [b, p] : recent)
+                    if (b == block) return p;
+                const int p = plan.pieceOfCell(cell);
+                recent[replace++ % recent.size()] = {block, p};
+                return p;
+            };
             for (std::size_t v = range.begin(); v < range.end(); ++v) {
                 const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
                 const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
@@ -386,7 +398,7 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
                         openvdb::Coord c = e;
                         c[a1] -= d & 1;
                         c[a2] -= d >> 1;
-                        const int p = plan.pieceOfCell(c);
+                        const int p = pieceOfCell(c);
                         other = p >= 0 && p != rank;
                     }
                 shared[v] = other;
