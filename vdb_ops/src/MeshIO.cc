@@ -2,11 +2,16 @@
 // on failure, an existing output is never clobbered). Header layout: docs/ply-format.md.
 #include "MeshIOInternal.h"
 
+#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
+#include <tbb/task_group.h>
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cerrno>
 #include <charconv>
@@ -226,7 +231,9 @@ void checkTriangle(const Mesh& mesh, std::size_t f, std::size_t nv, const Fail& 
 }
 
 /// The binary rows of @a mesh in chunks: sink(false, ...) for the vertex rows, then
-/// sink(true, ...) for the face rows; vertex indices must be below @a nv.
+/// sink(true, ...) for the face rows, every call on the calling thread (an MPI sink must be:
+/// MPI_THREAD_FUNNELED); vertex indices must be below @a nv. While the sink takes one chunk (the
+/// kernel copying it into the page cache, the writes' serial part), a task interleaves the next.
 template <typename Sink, typename Fail>
 void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& fail)
 {
@@ -235,19 +242,21 @@ void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& 
     const std::size_t fStride = rowBytes(mesh.faceAttributes, 13);
     const std::size_t vChunk = std::max<std::size_t>(1, kChunkBytes / vStride);
     const std::size_t fChunk = std::max<std::size_t>(1, kChunkBytes / fStride);
-    std::vector<char> chunk(std::max(std::min(vChunk, rowsV) * vStride, std::min(fChunk, nf) * fStride));
-
-    for (std::size_t begin = 0; begin < rowsV; begin += vChunk) {
-        const std::size_t rows = std::min(vChunk, rowsV - begin);
-        char* row = chunk.data();
-        for (std::size_t r = 0; r < rows; ++r, row += vStride)
-            std::memcpy(row, mesh.positions[begin + r].asPointer(), 12);
-        interleaveColumns(mesh.vertexAttributes, begin, rows, chunk.data(), 12, vStride);
-        sink(false, chunk.data(), rows * vStride);
-    }
-    for (std::size_t begin = 0; begin < nf; begin += fChunk) {
-        const std::size_t rows = std::min(fChunk, nf - begin);
-        char* row = chunk.data();
+    const std::size_t vChunks = (rowsV + vChunk - 1) / vChunk, chunks = vChunks + (nf + fChunk - 1) / fChunk;
+    /// Chunk @a k's rows into @a out; returns their bytes.
+    const auto format = [&](std::size_t k, std::vector<char>& out) {
+        if (k < vChunks) {
+            const std::size_t begin = k * vChunk, rows = std::min(vChunk, rowsV - begin);
+            out.resize(rows * vStride);
+            char* row = out.data();
+            for (std::size_t r = 0; r < rows; ++r, row += vStride)
+                std::memcpy(row, mesh.positions[begin + r].asPointer(), 12);
+            interleaveColumns(mesh.vertexAttributes, begin, rows, out.data(), 12, vStride);
+            return rows * vStride;
+        }
+        const std::size_t begin = (k - vChunks) * fChunk, rows = std::min(fChunk, nf - begin);
+        out.resize(rows * fStride);
+        char* row = out.data();
         for (std::size_t r = 0; r < rows; ++r, row += fStride) {
             checkTriangle(mesh, begin + r, nv, fail);
             const openvdb::Vec3I& t = mesh.triangles[begin + r];
@@ -255,8 +264,23 @@ void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& 
             row[0] = 3;
             std::memcpy(row + 1, idx, 12);
         }
-        interleaveColumns(mesh.faceAttributes, begin, rows, chunk.data(), 13, fStride);
-        sink(true, chunk.data(), rows * fStride);
+        interleaveColumns(mesh.faceAttributes, begin, rows, out.data(), 13, fStride);
+        return rows * fStride;
+    };
+    // Two buffers when another thread can fill one meanwhile; else one, still in cache when refilled.
+    const bool overlap = tbb::this_task_arena::max_concurrency() > 1 &&
+        tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism) > 1;
+    std::array<std::vector<char>, 2> buffers; // before the task group: it waits for its task first
+    tbb::task_group next;
+    std::size_t bytes = chunks > 0 ? format(0, buffers[0]) : 0;
+    for (std::size_t k = 0; k < chunks; ++k) {
+        std::vector<char>& later = buffers[overlap ? (k + 1) % 2 : 0];
+        std::size_t nextBytes = 0;
+        if (overlap && k + 1 < chunks) next.run([&, k] { nextBytes = format(k + 1, later); });
+        sink(k >= vChunks, buffers[overlap ? k % 2 : 0].data(), bytes);
+        next.wait(); // rethrows the task's failure
+        if (!overlap && k + 1 < chunks) nextBytes = format(k + 1, later);
+        bytes = nextBytes;
     }
 }
 
