@@ -5,7 +5,8 @@
 #                                  find_package consumer, Blender add-on: they run the
 #                                  sanitized CLI; Blender itself is not sanitized).
 #   scripts/sanitize.sh thread     ThreadSanitizer in build-tsan/: the threaded mesher, the
-#                                  mesh measures (a union-find with atomics), hidden features,
+#                                  mesh measures (a union-find with atomics), the PLY writer (a
+#                                  task formats while a chunk is written), hidden features,
 #                                  the CLI contract and, with MPI, isouq under mpirun (ctest -R).
 # Any sanitizer report fails the test that caused it (halt_on_error, exitcode). Prints ctest's
 # summary; the exit status is ctest's.
@@ -67,12 +68,12 @@ thread)
     { echo "isouq: sanitize: $tbb/lib/libtbb.so.12 is not built with TSan" >&2; exit 1; }
   cmake -S . -B "$build" "${common[@]}" -DISOUQ_SANITIZE=thread \
     "-DCMAKE_BUILD_RPATH=$tbb/lib" "-DCMAKE_EXE_LINKER_FLAGS=-Wl,--disable-new-dtags" >/dev/null
-  cmake --build "$build" -j"$jobs" --target isouq test_MarchingCubes test_MeshTopology test_HiddenFeatures test_CliContract
+  cmake --build "$build" -j"$jobs" --target isouq test_MarchingCubes test_MeshTopology test_MeshIO test_HiddenFeatures test_CliContract
   ldd "$build/houdini_style_nodes/isouq" | grep -F "$tbb/lib/libtbb.so.12" >/dev/null ||
     { echo "isouq: sanitize: the TSan isouq does not load $tbb/lib/libtbb.so.12" >&2; exit 1; }
   export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$root/scripts/sanitizers/tsan.supp"
   cd "$build"
-  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|MeshTopology|HiddenFeatures|CliContract|^mpi_'
+  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|MeshTopology|MeshIO|HiddenFeatures|CliContract|^mpi_'
   ;;
 *)
   echo "usage: scripts/sanitize.sh [address|thread]" >&2
