@@ -12,6 +12,8 @@
 #include "isouq/GridMetadata.h"
 #include "isouq/HiddenFeatures.h"
 #include "isouq/MarchingCubes.h"
+#include "isouq/MeshIO.h"
+#include "isouq/MeshTopology.h"
 #include "isouq/VolumeSources.h"
 
 #include <openvdb/io/File.h>
@@ -296,6 +298,7 @@ struct Options {
     Algo isouqPass = Algo::Isouq; // --pass linear|estimate|full|hidden|hidden-unfiltered
     bool reuse = false;           // --reuse: one IsosurfaceMesher and Mesh per case
     std::vector<std::string> loads; // --load FILE,...: time isouq::loadVolume (dense scans)
+    std::vector<std::string> afterMesh; // --after-mesh PLY,...: time the summary's measures and the PLY write
     bool stages = false;            // --stages: per-stage thread scaling of the mesher
 };
 
@@ -323,6 +326,7 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--data") o.dataDir = next();
         else if (arg == "--reuse") o.reuse = true;
         else if (arg == "--load") o.loads = splitCommas(next());
+        else if (arg == "--after-mesh") o.afterMesh = splitCommas(next());
         else if (arg == "--stages") o.stages = true;
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
@@ -335,7 +339,8 @@ Options parseOptions(int argc, char** argv)
         } else {
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
-                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse] [--load FILE,...] [--stages]");
+                                     "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse] [--load FILE,...] "
+                                     "[--after-mesh PLY,...] [--stages]");
         }
     }
     return o;
@@ -436,6 +441,40 @@ void benchLoad(const std::string& path, const Options& o)
             mib * 1.048576 / w, load.c_str());
         std::fflush(stdout);
     }
+}
+
+/// --after-mesh: what `isouq mesh` does with a mesh once it is made, on a mesh read from a PLY:
+/// the summary's measureTopology (edges, components, area, volume) and writing the PLY to a new
+/// file beside it (removed before each write and at the end); medians per thread count, the
+/// thread counts taking turns call by call.
+void benchAfterMesh(const std::string& path, const Options& o)
+{
+    const isouq::Mesh mesh = isouq::readPly(path);
+    const std::string out = path + ".after-mesh.ply";
+    const std::string load = loadAverage();
+    std::vector<std::vector<std::array<double, 2>>> times(o.threads.size()); // measure, write
+    std::vector<int> used(o.threads.size());
+    for (int r = -1; r < o.repeats; ++r) // r = -1: warm-up
+        for (std::size_t t = 0; t < o.threads.size(); ++t) {
+            const auto control = limitThreads(o.threads[t]);
+            used[t] = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+            const double w0 = wallSeconds();
+            (void)isouq::measureTopology(mesh);
+            const double w1 = wallSeconds();
+            std::remove(out.c_str());
+            isouq::writePly(mesh, out);
+            const double w2 = wallSeconds();
+            if (r >= 0) times[t].push_back({w1 - w0, w2 - w1});
+        }
+    std::remove(out.c_str());
+    for (std::size_t t = 0; t < o.threads.size(); ++t) {
+        std::vector<double> measure, write;
+        for (const auto& [m, w] : times[t]) measure.push_back(m), write.push_back(w);
+        std::printf("| %s | %zu | %s%d | %.1f | %.1f | %s |\n", path.substr(path.rfind('/') + 1).c_str(),
+            mesh.triangleCount(), o.threads[t] <= 0 ? "default " : "", used[t], 1e3 * median(measure),
+            1e3 * median(write), load.c_str());
+    }
+    std::fflush(stdout);
 }
 
 /// --stages: the mesher's stages (IsosurfaceMesher::stageTimes) with one thread and with all,
@@ -544,6 +583,13 @@ int main(int argc, char** argv)
             std::printf("| file | MiB | threads | isovalue | kept blocks | load ms | CPU ms | MB/s | load |\n");
             std::printf("|---|--:|---|--:|--:|--:|--:|--:|--:|\n");
             for (const std::string& f : o.loads) benchLoad(f, o);
+            return 0;
+        }
+        if (!o.afterMesh.empty()) {
+            std::printf("After meshing: the summary's measureTopology and writePly to a new file. Load average at "
+                        "start: %s; %d repeats (median), thread counts taking turns.\n\n", loadAverage().c_str(), o.repeats);
+            std::printf("| PLY | triangles | threads | measure ms | write ms | load |\n|---|--:|---|--:|--:|--:|\n");
+            for (const std::string& f : o.afterMesh) benchAfterMesh(f, o);
             return 0;
         }
         if (o.stages) {
