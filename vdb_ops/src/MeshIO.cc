@@ -270,16 +270,18 @@ void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& 
     // Two buffers when another thread can fill one meanwhile; else one, still in cache when refilled.
     const bool overlap = tbb::this_task_arena::max_concurrency() > 1 &&
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism) > 1;
-    std::array<std::vector<char>, 2> buffers; // before the task group: it waits for its task first
+    // What the task writes lives outside the loop and before the task group, whose destructor
+    // waits for the task when the sink throws.
+    std::array<std::vector<char>, 2> buffers;
+    std::size_t nextBytes = 0;
     tbb::task_group next;
     std::size_t bytes = chunks > 0 ? format(0, buffers[0]) : 0;
     for (std::size_t k = 0; k < chunks; ++k) {
-        std::vector<char>& later = buffers[overlap ? (k + 1) % 2 : 0];
-        std::size_t nextBytes = 0;
-        if (overlap && k + 1 < chunks) next.run([&, k] { nextBytes = format(k + 1, later); });
+        nextBytes = 0;
+        if (overlap && k + 1 < chunks) next.run([&, k] { nextBytes = format(k + 1, buffers[(k + 1) % 2]); });
         sink(k >= vChunks, buffers[overlap ? k % 2 : 0].data(), bytes);
         next.wait(); // rethrows the task's failure
-        if (!overlap && k + 1 < chunks) nextBytes = format(k + 1, later);
+        if (!overlap && k + 1 < chunks) nextBytes = format(k + 1, buffers[0]);
         bytes = nextBytes;
     }
 }
