@@ -243,7 +243,7 @@ void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& 
     const std::size_t vChunk = std::max<std::size_t>(1, kChunkBytes / vStride);
     const std::size_t fChunk = std::max<std::size_t>(1, kChunkBytes / fStride);
     const std::size_t vChunks = (rowsV + vChunk - 1) / vChunk, chunks = vChunks + (nf + fChunk - 1) / fChunk;
-    /// Chunk @a k's rows into @a out; returns their bytes.
+    // Chunk k's rows into out; returns their bytes.
     const auto format = [&](std::size_t k, std::vector<char>& out) {
         if (k < vChunks) {
             const std::size_t begin = k * vChunk, rows = std::min(vChunk, rowsV - begin);
