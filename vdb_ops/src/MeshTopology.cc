@@ -85,6 +85,7 @@ struct Parts {
 struct EdgeTally {
     std::size_t edges = 0, boundary = 0, nonManifold = 0;
     void add(std::size_t uses) { ++edges, boundary += uses == 1, nonManifold += uses > 2; }
+    void join(const EdgeTally& next) { edges += next.edges, boundary += next.boundary, nonManifold += next.nonManifold; }
 };
 
 /// Tallies the upper ends of the edges that share one lower end: a long fan sorted into runs of
@@ -169,8 +170,7 @@ public:
         mUpper.reset();
         mOffset.reset();
         EdgeTally sum;
-        for (const EdgeTally& t : tallies)
-            sum.edges += t.edges, sum.boundary += t.boundary, sum.nonManifold += t.nonManifold;
+        for (const EdgeTally& t : tallies) sum.join(t);
         return sum;
     }
 
