@@ -249,7 +249,11 @@ def interrupt(args):
     for target in ("ranks", "mpirun"):
         for stale in glob.glob(out) + glob.glob(os.path.join(work, ".isouq-*")):
             os.remove(stale)  # an earlier run's
-        p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", src, "-o", out, "-j", "1"],
+        # Hidden features at -j 1 keep the ranks busy for seconds after the load: mpirun sends
+        # SIGTERM only a second after its SIGINT, and the plain pass would often be done by then.
+        p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", src, "-o", out, "-j", "1",
+                                                      "--hidden-features", "--no-hidden-filter",
+                                                      "--subdivisions", "8"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ranks = []
         deadline = time.time() + 30
@@ -262,7 +266,12 @@ def interrupt(args):
                 os.kill(pid, signal.SIGINT)
         else:
             p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=60)
+        got, err = p.communicate(timeout=60)
+        if "wrote" in got:
+            sys.exit(f"SIGINT to the {target}: the run ended before the signal reached the ranks; "
+                     f"give them more work (big_sphere, the options above)\n{got}")
+        if "interrupted" not in err:
+            sys.exit(f"SIGINT to the {target}: no rank said it was interrupted\n{err}")
         expect = 130 if target == "ranks" else None
         if expect is not None and p.returncode != expect:
             sys.exit(f"SIGINT to the {target}: exit {p.returncode}, expected {expect}\n{err}")
