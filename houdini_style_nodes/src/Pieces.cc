@@ -356,8 +356,10 @@ std::vector<Words> chunkSumsOnRanks(const Ranks& ranks, std::uint64_t first, std
 
 /// measureTopology's edges and components of the whole mesh, on rank 0 (zeros elsewhere): each
 /// rank counts its own, and rank 0 joins them over the shared vertices, those that triangles of
-/// another rank may use: a standard vertex on an edge of a cell that another rank meshes, a
-/// refined vertex (hidden = 1 on a subcell edge; a fan centre is its transition cell's only).
+/// another rank may use: a vertex on an edge of a cell that another rank meshes. A refined vertex
+/// (hidden = 1) on a subcell edge is used only by the cells around that edge, which are among the
+/// four around the grid edge it records (edge_i..: the cell, floored); a fan centre is its
+/// transition cell's only.
 MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const LocalPiece& local)
 {
     const int rank = ranks.rank(), size = ranks.size();
@@ -369,7 +371,6 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
         const auto* ej = piece.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
         const auto* ek = piece.vertexAttributes.find<std::int32_t>(col::kEdgeK);
         const auto* ax = piece.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
-        const auto* hidden = piece.vertexAttributes.find<std::uint8_t>(col::kHidden);
         if (nLocal > 0 && (!ei || !ej || !ek || !ax))
             throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nLocal), [&](const auto& range) {
@@ -388,8 +389,8 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
             for (std::size_t v = range.begin(); v < range.end(); ++v) {
                 const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
                 const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
-                if (hidden && (*hidden)[v]) {
-                    shared[v] = a != 255;
+                if (a == 255) { // a fan centre (hidden = 1)
+                    shared[v] = 0;
                     continue;
                 }
                 bool other = false;
