@@ -253,7 +253,7 @@ def interrupt(args):
         # SIGTERM only a second after its SIGINT, and the plain pass would often be done by then.
         p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", src, "-o", out, "-j", "1",
                                                       "--hidden-features", "--no-hidden-filter",
-                                                      "--subdivisions", "8"],
+                                                      "--subdivisions", "12"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ranks = []
         deadline = time.time() + 30
