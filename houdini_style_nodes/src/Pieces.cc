@@ -254,6 +254,7 @@ struct LocalPiece {
     std::size_t nLocal = 0;
     std::vector<std::uint32_t> ghosts; ///< ascending, rows of the whole mesh
     std::vector<openvdb::Vec3s> ghostPositions;
+    std::vector<std::uint32_t> askedRows; ///< its rows that other ranks' triangles use (local)
 
     std::size_t vertexCount() const { return nLocal + ghosts.size(); }
     std::uint32_t localOf(std::uint32_t g) const
@@ -279,7 +280,7 @@ struct LocalPiece {
 LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
 {
     const int size = ranks.size();
-    LocalPiece out{Runs(where.vertexBegin, ranks.rank(), size), piece.vertexCount(), {}, {}};
+    LocalPiece out{Runs(where.vertexBegin, ranks.rank(), size), piece.vertexCount(), {}, {}, {}};
     const Runs& runs = out.runs;
     std::vector<std::uint32_t>& ghosts = out.ghosts;
     tbb::enumerable_thread_specific<std::vector<std::uint32_t>> found; // sorted below: any order
@@ -298,8 +299,10 @@ LocalPiece localPiece(const Ranks& ranks, const Mesh& piece, const MeshPiece& wh
     std::vector<Words> positions(static_cast<std::size_t>(size));
     for (int r = 0; r < size; ++r)
         for (std::uint64_t g : wantedHere[std::size_t(r)]) {
+            const std::size_t l = runs.localOf(g, runs.runOf(g));
+            out.askedRows.push_back(std::uint32_t(l));
             std::uint64_t words[2] = {0, 0};
-            std::memcpy(words, piece.positions[runs.localOf(g, runs.runOf(g))].asPointer(), 12);
+            std::memcpy(words, piece.positions[l].asPointer(), 12);
             positions[std::size_t(r)].insert(positions[std::size_t(r)].end(), words, words + 2);
         }
     const std::vector<Words> got = ranks.exchange(positions);
@@ -356,56 +359,14 @@ std::vector<Words> chunkSumsOnRanks(const Ranks& ranks, std::uint64_t first, std
 
 /// measureTopology's edges and components of the whole mesh, on rank 0 (zeros elsewhere): each
 /// rank counts its own, and rank 0 joins them over the shared vertices, those that triangles of
-/// another rank may use: a vertex on an edge of a cell that another rank meshes. A refined vertex
-/// (hidden = 1) on a subcell edge is used only by the cells around that edge, which are among the
-/// four around the grid edge it records (edge_i..: the cell, floored); a fan centre is its
-/// transition cell's only.
-MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const LocalPiece& local)
+/// two ranks may use: a rank's ghosts, and its rows that another rank asked for as a ghost (an
+/// edge of two ranks' triangles has both ends shared on both).
+MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const LocalPiece& local)
 {
     const int rank = ranks.rank(), size = ranks.size();
-    const BrickPlan& plan = *where.plan;
-    const std::size_t nLocal = local.nLocal;
-    std::vector<std::uint8_t> shared(local.vertexCount(), 1); // ghosts: shared
-    {
-        const auto* ei = piece.vertexAttributes.find<std::int32_t>(col::kEdgeI);
-        const auto* ej = piece.vertexAttributes.find<std::int32_t>(col::kEdgeJ);
-        const auto* ek = piece.vertexAttributes.find<std::int32_t>(col::kEdgeK);
-        const auto* ax = piece.vertexAttributes.find<std::uint8_t>(col::kEdgeAxis);
-        if (nLocal > 0 && (!ei || !ej || !ek || !ax))
-            throw std::invalid_argument("input 'mesh' has no edge_i edge_j edge_k edge_axis (provenance)");
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nLocal), [&](const auto& range) {
-            // The pieces of the last four blocks looked up: a block's vertices follow each other.
-            std::array<std::pair<openvdb::Coord, int>, 4> recent;
-            recent.fill({openvdb::Coord::max(), -1});
-            std::size_t replace = 0;
-            const auto pieceOfCell = [&](const openvdb::Coord& cell) {
-                const openvdb::Coord block = cell >> 3;
-                for (const auto& [b, p] : recent)
-                    if (b == block) return p;
-                const int p = plan.pieceOfCell(cell);
-                recent[replace++ % recent.size()] = {block, p};
-                return p;
-            };
-            for (std::size_t v = range.begin(); v < range.end(); ++v) {
-                const openvdb::Coord e((*ei)[v], (*ej)[v], (*ek)[v]);
-                const int a = (*ax)[v], a1 = (a + 1) % 3, a2 = (a + 2) % 3;
-                if (a == 255) { // a fan centre (hidden = 1)
-                    shared[v] = 0;
-                    continue;
-                }
-                bool other = false;
-                if ((e[a1] & 7) == 0 || (e[a2] & 7) == 0) // else its four cells are in its block
-                    for (int d = 0; d < 4 && !other; ++d) {
-                        openvdb::Coord c = e;
-                        c[a1] -= d & 1;
-                        c[a2] -= d >> 1;
-                        const int p = pieceOfCell(c);
-                        other = p >= 0 && p != rank;
-                    }
-                shared[v] = other;
-            }
-        });
-    }
+    std::vector<std::uint8_t> shared(local.vertexCount(), 0);
+    std::fill(shared.begin() + std::ptrdiff_t(local.nLocal), shared.end(), std::uint8_t(1));
+    for (std::uint32_t l : local.askedRows) shared[l] = 1;
     MeshTopologyStats topo;
     std::vector<std::uint32_t> labels;
     ranks.step([&] { topo = measureTopology(local.triangles(piece), &labels); });
@@ -485,7 +446,7 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
 
 MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
 {
-    return topologyOnRanks(ranks, piece, where, localPiece(ranks, piece, where));
+    return topologyOnRanks(ranks, piece, localPiece(ranks, piece, where));
 }
 
 nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where)
@@ -558,7 +519,7 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     for (const Words& w : columnChunks)
         for (std::size_t c = 0; c < columns.size(); ++c) stats[c].join(sumsOf(w.data() + 5 * c));
 
-    const MeshTopologyStats topo = topologyOnRanks(ranks, piece, where, local);
+    const MeshTopologyStats topo = topologyOnRanks(ranks, piece, local);
     if (ranks.rank() != 0) return nlohmann::json::object();
     // The keys of summarizeMesh.
     nlohmann::json s;
