@@ -7,7 +7,9 @@
 # The input is a level-set sphere made with pyopenvdb (radius 400 voxels: 12 M active voxels,
 # 3.0 M vertices, 6.0 M triangles); every run writes the same PLY, which the script checks. Each
 # run writes a new file: the last run's is removed first, outside the timing (replacing a file
-# frees the old one inside the rename: 0.25 s for 1.25 GB on the test machine, at any rank count).
+# frees the old one inside the rename: 0.25 s for 1.25 GB on the test machine, at any rank count),
+# and `sync` runs before each timed run, the ranks' files removed once compared, so that no
+# writeback of an earlier output takes a core from a timed run.
 set -euo pipefail
 isouq=${1:?usage: mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS] [R]}
 work=${2:-/tmp/isouq-mpi-bench}
@@ -30,12 +32,15 @@ for flags in "" "--linear-only"; do
   : > "$log"
   for ((r = 0; r < repeats; ++r)); do
     rm -f "$work/one.ply"
+    sync # no writeback of earlier outputs during the timed runs: the flusher takes a core
     /usr/bin/time -f "one %e %M" -a -o "$log" "$isouq" mesh "$input" -o "$work/one.ply" $flags -q -j 1 >/dev/null
     for np in 1 2; do
       rm -f "$work/np$np.ply"
+      sync
       "${mpirun[@]}" -np $np /usr/bin/time -f "np$np %e %M" -a -o "$log" \
         "$isouq" mesh "$input" -o "$work/np$np.ply" --summary "$work/np$np.json" $flags -q -j 1 >/dev/null
       cmp -s "$work/one.ply" "$work/np$np.ply" || { echo "np $np: the PLY differs"; exit 1; }
+      rm -f "$work/np$np.ply" # its dirty pages dropped, never written back
     done
   done
   sed 's/^/   run: /; s/ \([0-9.]*\) \([0-9]*\)$/ \1 s, peak \2 KB/' "$log"
