@@ -28,13 +28,14 @@ std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::
     const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter);
 
 /// summarizeMesh of the whole mesh, on rank 0 (an empty object elsewhere): sums carried from
-/// rank to rank in the one-process order (bit-equal), edges and components joined over the
-/// vertices that another rank's cells use.
+/// rank to rank in the one-process order (bit-equal), edges and components joined as
+/// topologyOnRanks does.
 nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where);
 
 /// measureTopology's boundary and non-manifold edges and components of the whole mesh, on rank
-/// 0 (zeros elsewhere): each rank's own, joined over the vertices that another rank's triangles
-/// may use. Any mesh by pieces (a hidden-feature mesh's sections too).
+/// 0 (zeros elsewhere): each rank's own, joined over the vertices that triangles of two ranks
+/// use (a rank's ghosts and the rows other ranks fetch from it). Any mesh by pieces (a
+/// hidden-feature mesh's sections too).
 MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where);
 
 /// On rank 0, @a summary gets `ranks` (per rank: voxels_read, vertices, triangles, blocks,
