@@ -364,8 +364,8 @@ std::vector<Words> chunkSumsOnRanks(const Ranks& ranks, std::uint64_t first, std
 MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const LocalPiece& local)
 {
     const int rank = ranks.rank(), size = ranks.size();
-    std::vector<std::uint8_t> shared(local.vertexCount(), 0);
-    std::fill(shared.begin() + std::ptrdiff_t(local.nLocal), shared.end(), std::uint8_t(1));
+    std::vector<std::uint8_t> shared(local.nLocal, 0);
+    shared.resize(local.vertexCount(), 1); // the ghosts
     for (std::uint32_t l : local.askedRows) shared[l] = 1;
     MeshTopologyStats topo;
     std::vector<std::uint32_t> labels;
