@@ -7,7 +7,6 @@
 #include <openvdb/openvdb.h>
 
 #include <tbb/blocked_range.h>
-#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #ifdef __SSE2__
@@ -89,23 +88,15 @@ struct BlockSet {
 /// 7 below (cells with an active corner, owned by the block of their lower corner).
 enum class BlockReach { Around, Below };
 
-/// Leaves per task when the block set is built in parallel; fewer leaves: one thread (the
-/// merge and the task start-up cost more than they save; issue 15, "Threads").
-constexpr std::size_t kParallelBlockSetLeaves = 4096;
-
-/// Marks in @a coarse the blocks around (or up to) leaves [begin, end) that hold an active voxel.
-template <typename LeafT>
-void markBlocks(const LeafT* const* begin, const LeafT* const* end, BlockIndexTree& coarse, BlockReach reach)
+/// Marks in @a coarse the blocks around (or up to) the blocks @a leafBlocks (leaf origins >> 3).
+inline void markBlocks(const std::vector<Coord>& leafBlocks, BlockIndexTree& coarse, BlockReach reach)
 {
     openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
     const int to = reach == BlockReach::Around ? 1 : 0;
-    for (; begin != end; ++begin) {
-        if ((*begin)->isEmpty()) continue;
-        const Coord b = (*begin)->origin() >> 3;
+    for (const Coord& b : leafBlocks)
         for (int dx = -1; dx <= to; ++dx)
             for (int dy = -1; dy <= to; ++dy)
                 for (int dz = -1; dz <= to; ++dz) acc.setValueOn(b.offsetBy(dx, dy, dz), 0);
-    }
 }
 
 template <typename TreeT>
@@ -115,23 +106,23 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     BlockIndexTree& coarse = blocks.index;
     // The 27 blocks around (or the 8 up to) each leaf, set one by one: on a small grid this is
     // several times cheaper than a tools::dilateActiveValues of the leaves' blocks, which it
-    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency"). Big grids mark
-    // runs of leaves in trees of their own, joined after (a union of a few coarse leaves each).
+    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency"). Reading the
+    // leaves (a cache miss each) is most of it and runs on every thread; marking the blocks of
+    // the non-empty ones in one tree is serial (per-thread trees joined after were slower at 2
+    // threads than at 1: bench/README.md "4 December 2026").
     std::vector<const LeafT*> leaves;
     leaves.reserve(tree.leafCount());
     tree.getNodes(leaves);
-    const std::size_t grain = kParallelBlockSetLeaves;
-    const bool parallel = threaded && leaves.size() >= 2 * grain;
-    if (parallel) {
-        tbb::enumerable_thread_specific<BlockIndexTree> parts(-1);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), grain),
-            [&](const tbb::blocked_range<std::size_t>& r) {
-                markBlocks(leaves.data() + r.begin(), leaves.data() + r.end(), parts.local(), reach);
-            });
-        for (const BlockIndexTree& part : parts) coarse.topologyUnion(part);
-    } else {
-        markBlocks(leaves.data(), leaves.data() + leaves.size(), coarse, reach);
-    }
+    std::vector<Coord> leafBlocks(leaves.size());
+    auto origins = [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i)
+            leafBlocks[i] = leaves[i]->isEmpty() ? Coord::max() : leaves[i]->origin() >> 3;
+    };
+    const tbb::blocked_range<std::size_t> allLeaves(0, leaves.size(), 1024);
+    if (threaded) tbb::parallel_for(allLeaves, origins);
+    else origins(allLeaves);
+    leafBlocks.erase(std::remove(leafBlocks.begin(), leafBlocks.end(), Coord::max()), leafBlocks.end());
+    markBlocks(leafBlocks, coarse, reach);
     bool tiles = false;
     // Active tiles: only the blocks within one voxel of a tile's border can hold a crossing
     // between the tile and its surroundings; the tile's interior is constant and is skipped.
@@ -166,7 +157,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
         }
     };
     const tbb::blocked_range<std::size_t> all(0, coarseLeaves.size(), 16);
-    if (parallel) tbb::parallel_for(all, number);
+    if (threaded) tbb::parallel_for(all, number);
     else number(all);
 }
 

@@ -53,27 +53,30 @@ private:
     openvdb::Mat4d mMatrix;
 };
 
-/// Gives @a v n elements to be overwritten (their values unspecified). New storage has its pages
-/// faulted in by every thread first (Linux's MADV_POPULATE_WRITE, which writes nothing): a fresh
-/// page costs microseconds here (DESIGN.md "Memory and allocation"), and the first touch of a
-/// large output by resize()'s serial zero fill was the mesher's largest serial stage
-/// (bench/README.md "Thread scaling").
+/// Gives @a v n elements to be overwritten (their values unspecified). New storage of 8 MiB or
+/// more is backed by 2 MiB pages where the kernel allows it (MADV_HUGEPAGE; THP "madvise" is
+/// Debian's default) and faulted in by every thread first (MADV_POPULATE_WRITE, which writes
+/// nothing): a fresh 4 KiB page costs microseconds here, a 2 MiB page about as much as 4 of them
+/// (DESIGN.md "Memory and allocation"; bench/README.md "4 December 2026"), and the first touch of
+/// a large output by resize()'s serial zero fill was the mesher's largest serial stage.
 template <typename T>
 void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
 {
-    constexpr std::size_t kPage = 4096, kChunk = std::size_t(1) << 21;
-    if (!threaded || n <= v.capacity() || n * sizeof(T) < 4 * kChunk) return v.resize(n);
+    constexpr std::size_t kHuge = std::size_t(1) << 21;
+    if (n <= v.capacity() || n * sizeof(T) < 4 * kHuge) return v.resize(n);
     std::vector<T> fresh;
     fresh.reserve(n);
-    const auto lo = (reinterpret_cast<std::uintptr_t>(fresh.data()) + kPage - 1) & ~(kPage - 1);
-    const auto hi = reinterpret_cast<std::uintptr_t>(fresh.data() + n) & ~(kPage - 1);
-    tbb::parallel_for(std::size_t(0), (hi - lo + kChunk - 1) / kChunk, [&](std::size_t c) {
-        const std::uintptr_t at = lo + c * kChunk;
-#ifdef MADV_POPULATE_WRITE
-        ::madvise(reinterpret_cast<void*>(at), std::min<std::uintptr_t>(kChunk, hi - at), MADV_POPULATE_WRITE);
+    // The whole 2 MiB pages inside the storage (its ends share pages with other allocations).
+    const auto lo = (reinterpret_cast<std::uintptr_t>(fresh.data()) + kHuge - 1) & ~(kHuge - 1);
+    const auto hi = reinterpret_cast<std::uintptr_t>(fresh.data() + n) & ~(kHuge - 1);
+#if defined(MADV_HUGEPAGE) && defined(MADV_POPULATE_WRITE)
+    ::madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+    auto populate = [&](std::size_t page) {
+        ::madvise(reinterpret_cast<void*>(lo + page * kHuge), kHuge, MADV_POPULATE_WRITE);
+    };
+    if (threaded) tbb::parallel_for(std::size_t(0), (hi - lo) / kHuge, populate);
+    else for (std::size_t page = 0; page < (hi - lo) / kHuge; ++page) populate(page);
 #endif
-        (void)at; // without it, resize() below faults the pages as before
-    });
     fresh.resize(n);
     v.swap(fresh);
 }
