@@ -11,7 +11,7 @@ packages=(
   libopenmpi-dev openmpi-bin
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
-  python3-openimageio python3-openvdb hyperfine
+  python3-openimageio python3-openvdb hyperfine strace
   python3-dev pybind11-dev libboost-python-dev
   python3-paraview python3-nibabel python3-pydicom python3-tifffile xvfb
   blender

@@ -2,6 +2,7 @@
 // The options of `mesh` come from the parameter declarations of the read_volume, mesh,
 // write_ply, color_map and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
+#include "HugePages.h"
 #include "ParmOptions.h"
 #include "ProgressInterrupter.h"
 #include "ValidateCommand.h"
@@ -56,6 +57,9 @@ puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: 
 interrupted run (Ctrl-C, exit 130) leaves no partial file and never clobbers an existing one.
 The command runs a node graph (docs/nodes.md): --save-graph G.json writes it, and
 'isouq run G.json' from the same folder writes the same files.
+Under mpirun or srun the same command meshes on every rank into one file (docs/mpi.md).
+With an input of 16 MiB or more, isouq restarts itself once with glibc's malloc.hugetlb=1
+(2 MiB memory pages: fewer page faults); ISOUQ_HUGE_PAGES=0 turns that off (docs/mesher.md).
 )";
 
 const char* const kRunFooter = R"(
@@ -220,6 +224,7 @@ int listNodes(bool json, bool markdown)
 
 int main(int argc, char** argv)
 {
+    isouq::cli::useHugePagesForLargeInputs(argc, argv); // may re-execute this program, once
     // Past a file size limit (`ulimit -f`) a write fails with EFBIG and is reported and cleaned
     // up as a full disk is, instead of SIGXFSZ ending the process with its temporary file left.
     std::signal(SIGXFSZ, SIG_IGN);

@@ -1,0 +1,66 @@
+// isouq CLI: re-execution with glibc's malloc.hugetlb tunable for large inputs (HugePages.h).
+#include "HugePages.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <string>
+
+namespace isouq::cli {
+
+namespace {
+
+bool sanitized()
+{
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+    return true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
+    return true;
+#else
+    return false;
+#endif
+#else
+    return false;
+#endif
+}
+
+bool hasLargeFileArgument(int argc, char** argv)
+{
+    constexpr off_t kLarge = off_t(16) << 20;
+    for (int i = 1; i < argc; ++i) {
+        struct stat st {};
+        if (::stat(argv[i], &st) == 0 && S_ISREG(st.st_mode) && st.st_size >= kLarge) return true;
+    }
+    return false;
+}
+
+} // namespace
+
+void useHugePagesForLargeInputs(int argc, char** argv)
+{
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 35)) && defined(__linux__)
+    const char* tunables = std::getenv("GLIBC_TUNABLES");
+    if (sanitized() || (tunables && std::strstr(tunables, "glibc.malloc.hugetlb"))) return;
+    if (const char* opt = std::getenv("ISOUQ_HUGE_PAGES"); opt && std::strcmp(opt, "0") == 0) return;
+    if (const char* preload = std::getenv("LD_PRELOAD"); preload && std::strstr(preload, "vgpreload")) return;
+    if (!hasLargeFileArgument(argc, argv)) return;
+    std::string thp;
+    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), thp);
+    if (thp.empty() || thp.find("[never]") != std::string::npos) return;
+    const std::string old = tunables ? tunables : "";
+    const std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
+    if (::setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
+    ::execv("/proc/self/exe", argv);
+    // The exec failed: go on in this process, with the environment as it was.
+    if (tunables) ::setenv("GLIBC_TUNABLES", old.c_str(), 1);
+    else ::unsetenv("GLIBC_TUNABLES");
+#else
+    (void)argc, (void)argv;
+#endif
+}
+
+} // namespace isouq::cli
