@@ -1,4 +1,4 @@
-// isouq CLI: large runs take their heap in 2 MiB pages (issue 15, "Threads"; docs/performance.md).
+// isouq CLI: large runs take their heap in 2 MiB pages (issue 15; docs/mesher.md "Memory pages").
 #pragma once
 
 namespace isouq::cli {
