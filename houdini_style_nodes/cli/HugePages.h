@@ -7,7 +7,7 @@ namespace isouq::cli {
 /// glibc's malloc.hugetlb=1 tunable added to GLIBC_TUNABLES (read by glibc only at start-up):
 /// malloc then asks for transparent huge pages (MADV_HUGEPAGE) on the memory it maps. A fresh
 /// 4 KiB page costs about 10 us on the machines isouq is measured on, and loading a 1 GiB scan
-/// faults in 40 000 of them for its leaves alone. Does nothing when the tunable is already set
+/// faults in 30 000 of them for its leaves alone. Does nothing when the tunable is already set
 /// (by the user or by the re-executed run), when ISOUQ_HUGE_PAGES=0, when the kernel's THP is
 /// "never", under valgrind or a sanitizer (their own allocators), or when the exec fails. Must
 /// run first in main(), before MPI starts or any thread, file or handler exists.

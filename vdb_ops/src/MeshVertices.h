@@ -56,8 +56,8 @@ private:
 /// Gives @a v n elements to be overwritten (their values unspecified). New storage of 8 MiB or
 /// more is backed by 2 MiB pages where the kernel allows it (MADV_HUGEPAGE; THP "madvise" is
 /// Debian's default) and faulted in by every thread first (MADV_POPULATE_WRITE, which writes
-/// nothing): a fresh 4 KiB page costs microseconds here, a 2 MiB page about as much as 4 of them
-/// (DESIGN.md "Memory and allocation"; bench/README.md "4 December 2026"), and the first touch of
+/// nothing): a fresh 4 KiB page costs about 10 us here, a 2 MiB page as much as 12-17 of them
+/// (DESIGN.md "Memory and allocation"; docs/mesher.md "Memory pages"), and the first touch of
 /// a large output by resize()'s serial zero fill was the mesher's largest serial stage.
 template <typename T>
 void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
