@@ -4,6 +4,8 @@
 // dense array with bit rows (one bit per z) of inside and active voxels. Internal to vdb_ops.
 #pragma once
 
+#include "FreshPages.h"
+
 #include <openvdb/openvdb.h>
 
 #include <tbb/blocked_range.h>
@@ -112,8 +114,10 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     // threads than at 1: bench/README.md "4 December 2026").
     std::vector<const LeafT*> leaves;
     leaves.reserve(tree.leafCount());
+    populatePages(leaves.data(), leaves.capacity() * sizeof(const LeafT*), threaded);
     tree.getNodes(leaves);
-    std::vector<Coord> leafBlocks(leaves.size());
+    std::vector<Coord> leafBlocks;
+    resizeForFill(leafBlocks, leaves.size(), threaded);
     auto origins = [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i)
             leafBlocks[i] = leaves[i]->isEmpty() ? Coord::max() : leaves[i]->origin() >> 3;
@@ -145,7 +149,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     std::vector<std::int32_t> first(coarseLeaves.size() + 1, 0);
     for (std::size_t i = 0; i < coarseLeaves.size(); ++i)
         first[i + 1] = first[i] + std::int32_t(coarseLeaves[i]->onVoxelCount());
-    blocks.origins.resize(std::size_t(first.back()));
+    resizeForFill(blocks.origins, std::size_t(first.back()), threaded);
     auto number = [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             std::int32_t next = first[i];

@@ -27,6 +27,7 @@ struct BrickMesherData {
     std::vector<BlockCounts> counts;          // per block of the piece
     std::vector<std::uint64_t> vertexOffsets; // per block of the order: the whole mesh's
     std::vector<std::uint64_t> triangleOffsets; // per block of the piece, then the total
+    FoundMasks found;                         // the piece's masks, as the count pass found them
     EdgeMasks masks;                          // slots for the order's blocks
     std::uint64_t vertices = 0, firstVertex = 0, firstTriangle = 0;
     bool counted = false, placed = false;
@@ -135,8 +136,9 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
         sides[d.begin + i] = scratch.local().regionSide(blocks.origins[d.begin + i], isovalue);
     });
 
-    d.counts.assign(n, BlockCounts{});
-    tbb::enumerable_thread_specific<std::vector<std::pair<std::int32_t, EdgeMask>>> found;
+    assignFresh(d.counts, n, BlockCounts{}, settings.threaded);
+    FoundMasks& found = d.found;
+    found.clear();
     forEachBlock(n, settings.threaded, interrupter, done, 3 * n, [&](std::size_t i) {
         BlockScratch<TreeT>& s = scratch.local();
         const Coord& origin = blocks.origins[d.begin + i];
@@ -144,7 +146,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
         if (!s.gatherAndClassify(origin, isovalue, cellBox)) return;
         EdgeMask mask;
         countBlock(s, mask, d.counts[i]);
-        if (!d.counts[i].empty()) found.local().emplace_back(std::int32_t(d.begin + i), mask);
+        if (!d.counts[i].empty()) found.local().push({std::int32_t(d.begin + i), mask});
     });
 
     d.vertexOffsets.assign(blocks.origins.size() + 1, 0);
@@ -159,10 +161,8 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
     }
     d.vertexOffsets[d.end] = vertices;
     d.vertices = vertices;
-    for (auto& list : found) {
-        for (const auto& [block, mask] : list) d.masks.own(block, mask);
-        list = {};
-    }
+    for (const auto& list : found)
+        list.forEach([&](const FoundMask& f) { d.masks.byBlock[std::size_t(f.block)] = &f.mask; });
     d.counted = true;
 }
 

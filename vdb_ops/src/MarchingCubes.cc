@@ -104,7 +104,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
 
     // Which side of the isovalue each block lies on, so blocks far from the surface cost little.
     std::vector<std::uint8_t>& sides = buffers.sides;
-    sides.assign(blockCount, 0);
+    assignFresh(sides, blockCount, std::uint8_t(0), threaded);
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
     });
@@ -112,15 +112,15 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
 
     // Count pass: per block its counts; the edge masks of non-empty blocks go to per-thread lists.
     std::vector<BlockCounts>& counts = buffers.counts;
-    counts.assign(blockCount, BlockCounts{});
-    tbb::enumerable_thread_specific<std::vector<std::pair<std::int32_t, EdgeMask>>> found;
+    assignFresh(counts, blockCount, BlockCounts{}, threaded);
+    FoundMasks found;
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         BlockScratch<TreeT>& s = scratch.local();
         if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
         if (!s.gatherBitsAndClassify(blocks.origins[b], isovalue, cellBox)) return;
         EdgeMask mask;
         countBlock(s, mask, counts[b]);
-        if (!counts[b].empty()) found.local().emplace_back(std::int32_t(b), mask);
+        if (!counts[b].empty()) found.local().push({std::int32_t(b), mask});
     });
     clock.lap(mStageTimes.count);
 
@@ -128,8 +128,8 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     // same offsets as a serial loop whatever the thread count.
     std::vector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
     std::vector<std::uint64_t>& triangleOffsets = buffers.triangleOffsets;
-    vertexOffsets.resize(blockCount + 1);
-    triangleOffsets.resize(blockCount + 1);
+    resizeForFill(vertexOffsets, blockCount + 1, threaded);
+    resizeForFill(triangleOffsets, blockCount + 1, threaded);
     struct Sums {
         std::uint64_t vertices = 0, triangles = 0;
     };
@@ -155,10 +155,10 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     // The masks stay in the count pass's lists, which live to the end of this call; each block
     // points at its own (no copy; a reused mesher's pointers are set again by the next call).
     EdgeMasks& masks = buffers.masks;
-    masks.byBlock.assign(blockCount, nullptr);
+    assignFresh(masks.byBlock, blockCount, static_cast<const EdgeMask*>(nullptr), threaded);
     auto pointAtMasks = [&](auto& lists) {
         for (const auto& list : lists)
-            for (const auto& [block, mask] : list) masks.byBlock[std::size_t(block)] = &mask;
+            list.forEach([&](const FoundMask& f) { masks.byBlock[std::size_t(f.block)] = &f.mask; });
     };
     if (threaded) tbb::parallel_for(found.range(1), pointAtMasks);
     else pointAtMasks(found);

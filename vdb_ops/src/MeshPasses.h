@@ -15,6 +15,7 @@
 #include <openvdb/thread/Threading.h>
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <deque>
@@ -60,8 +61,15 @@ struct BlockCounts {
     bool empty() const { return vertices == 0 && triangles == 0; }
 };
 
-/// The edge masks of the non-empty blocks, found by block index. The mesher's masks stay in its
-/// count pass's per-thread lists; a brick keeps its own and its neighbours' in `owned`.
+/// A non-empty block's mask, as the count pass finds it; each thread appends to its own list.
+struct FoundMask {
+    std::int32_t block;
+    EdgeMask mask;
+};
+using FoundMasks = tbb::enumerable_thread_specific<ChunkList<FoundMask>>;
+
+/// The edge masks of the non-empty blocks, found by block index. The masks stay in the count
+/// pass's per-thread lists (FoundMasks); a brick keeps its neighbours' in `owned`.
 struct EdgeMasks {
     std::vector<const EdgeMask*> byBlock; // null for a block without vertices or triangles
     std::deque<EdgeMask> owned;           // a deque: pointers into it stay valid as it grows

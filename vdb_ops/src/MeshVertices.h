@@ -8,11 +8,11 @@
 #include "isouq/ErrorEstimate.h"
 #include "isouq/MarchingCubes.h"
 
+#include "FreshPages.h"
+
 #include <openvdb/math/Transform.h>
 
 #include <tbb/parallel_for.h>
-
-#include <sys/mman.h>
 
 #include <algorithm>
 #include <array>
@@ -52,34 +52,6 @@ private:
     bool mAffine = false;
     openvdb::Mat4d mMatrix;
 };
-
-/// Gives @a v n elements to be overwritten (their values unspecified). New storage of 8 MiB or
-/// more is backed by 2 MiB pages where the kernel allows it (MADV_HUGEPAGE; THP "madvise" is
-/// Debian's default) and faulted in by every thread first (MADV_POPULATE_WRITE, which writes
-/// nothing): a fresh 4 KiB page costs about 10 us here, a 2 MiB page as much as 12-17 of them
-/// (DESIGN.md "Memory and allocation"; docs/mesher.md "Memory pages"), and the first touch of
-/// a large output by resize()'s serial zero fill was the mesher's largest serial stage.
-template <typename T>
-void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
-{
-    constexpr std::size_t kHuge = std::size_t(1) << 21;
-    if (n <= v.capacity() || n * sizeof(T) < 4 * kHuge) return v.resize(n);
-    std::vector<T> fresh;
-    fresh.reserve(n);
-    // The whole 2 MiB pages inside the storage (its ends share pages with other allocations).
-    const auto lo = (reinterpret_cast<std::uintptr_t>(fresh.data()) + kHuge - 1) & ~(kHuge - 1);
-    const auto hi = reinterpret_cast<std::uintptr_t>(fresh.data() + n) & ~(kHuge - 1);
-#if defined(MADV_HUGEPAGE) && defined(MADV_POPULATE_WRITE)
-    ::madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
-    auto populate = [&](std::size_t page) {
-        ::madvise(reinterpret_cast<void*>(lo + page * kHuge), kHuge, MADV_POPULATE_WRITE);
-    };
-    if (threaded) tbb::parallel_for(std::size_t(0), (hi - lo) / kHuge, populate);
-    else for (std::size_t page = 0; page < (hi - lo) / kHuge; ++page) populate(page);
-#endif
-    fresh.resize(n);
-    v.swap(fresh);
-}
 
 /// Output columns the fill pass writes into (null when not requested).
 struct VertexColumns {

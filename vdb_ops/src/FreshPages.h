@@ -1,0 +1,122 @@
+// isouq (internal): fresh storage faulted in before its first write (DESIGN.md "Memory and
+// allocation"; docs/mesher.md "Memory pages"). On the virtual machines isouq is measured on a
+// 4 KiB page faulted by its first write costs about 11 us, the same page faulted in by
+// MADV_POPULATE_WRITE (one call for a whole range, which writes nothing) about 1 us, and a 2 MiB
+// page 0.12-0.17 ms (bench/page_cost.py). Used by the mesher for every per-block array and
+// output column it allocates, so that a first call costs what a reused mesher's does.
+#pragma once
+
+#include <tbb/parallel_for.h>
+
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <new>
+#include <type_traits>
+#include <vector>
+
+namespace isouq::mc_internal {
+
+constexpr std::size_t kHugePage = std::size_t(1) << 21;
+constexpr std::size_t kPopulateFrom = std::size_t(1) << 16;   // smaller: a few faults, not worth a call
+constexpr std::size_t kHugeFrom = 4 * kHugePage;                // 8 MiB: advised 2 MiB pages
+
+/// Faults in the pages of [p, p + bytes), which must be this process's own writable memory; the
+/// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more (THP
+/// "madvise", Debian's default, or "always"). Pages another allocation shares are only faulted
+/// in, never written. A kernel without MADV_POPULATE_WRITE (before 5.14) faults on first write.
+inline void populatePages(const void* p, std::size_t bytes, bool threaded)
+{
+#if defined(MADV_POPULATE_WRITE)
+    if (bytes < kPopulateFrom) return;
+    const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
+    const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(p) & ~(page - 1);
+    const std::uintptr_t hi = (reinterpret_cast<std::uintptr_t>(p) + bytes + page - 1) & ~(page - 1);
+    if (bytes >= kHugeFrom) {
+        const std::uintptr_t hugeLo = (lo + kHugePage - 1) & ~(kHugePage - 1), hugeHi = hi & ~(kHugePage - 1);
+        if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
+    }
+    // Pieces of 2 MiB (on 2 MiB boundaries), so that the threads share the zeroing.
+    const std::size_t pieces = (hi - 1) / kHugePage - lo / kHugePage + 1;
+    auto populate = [&](std::size_t i) {
+        const std::uintptr_t from = std::max(lo, (lo / kHugePage + i) * kHugePage);
+        const std::uintptr_t to = std::min(hi, (lo / kHugePage + i + 1) * kHugePage);
+        ::madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
+    };
+    if (threaded && pieces > 1) tbb::parallel_for(std::size_t(0), pieces, populate);
+    else for (std::size_t i = 0; i < pieces; ++i) populate(i);
+#else
+    (void)p, (void)bytes, (void)threaded;
+#endif
+}
+
+/// Gives @a v n elements to be overwritten (their values unspecified): storage it already has
+/// is reused; new storage is faulted in first (populatePages).
+template <typename T>
+void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
+{
+    static_assert(std::is_trivially_copyable_v<T>);
+    if (n <= v.capacity()) return v.resize(n);
+    std::vector<T> fresh;
+    fresh.reserve(n);
+    populatePages(fresh.data(), n * sizeof(T), threaded);
+    fresh.resize(n);
+    v.swap(fresh);
+}
+
+/// @a v becomes n copies of @a value, in storage faulted in first when it is new.
+template <typename T>
+void assignFresh(std::vector<T>& v, std::size_t n, const T& value, bool threaded)
+{
+    if (n > v.capacity()) {
+        std::vector<T>().swap(v);
+        v.reserve(n);
+        populatePages(v.data(), n * sizeof(T), threaded);
+    }
+    v.assign(n, value);
+}
+
+/// An append-only list of trivially copyable records whose addresses never change: chunks of
+/// one 2 MiB page each, faulted in when taken (a growing std::vector faults in and copies about
+/// twice what it keeps). One per thread; not thread-safe.
+template <typename T>
+class ChunkList {
+    static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T> && sizeof(T) <= kHugePage);
+
+public:
+    static constexpr std::size_t kPerChunk = kHugePage / sizeof(T);
+
+    T& push(const T& value)
+    {
+        if (mChunks.empty() || mLast == kPerChunk) {
+            void* chunk = std::aligned_alloc(kHugePage, kHugePage);
+            if (!chunk) throw std::bad_alloc();
+            mChunks.emplace_back(static_cast<T*>(chunk));
+            ::madvise(chunk, kHugePage, MADV_HUGEPAGE);
+            populatePages(chunk, kHugePage, false);
+            mLast = 0;
+        }
+        return *new (mChunks.back().get() + mLast++) T(value);
+    }
+
+    template <typename F>
+    void forEach(F&& f) const
+    {
+        for (std::size_t c = 0; c < mChunks.size(); ++c)
+            for (std::size_t i = 0, n = c + 1 == mChunks.size() ? mLast : kPerChunk; i < n; ++i) f(mChunks[c][i]);
+    }
+
+private:
+    struct Free {
+        void operator()(T* p) const { std::free(p); }
+    };
+    std::vector<std::unique_ptr<T[], Free>> mChunks;
+    std::size_t mLast = 0; // records in the last chunk
+};
+
+} // namespace isouq::mc_internal
