@@ -407,9 +407,18 @@ void benchCase(const std::string& caseName, const Options& o)
     if (rows.size() == 2 && rows[0].used != rows[1].used) {
         const Row& many = rows[0].used > rows[1].used ? rows[0] : rows[1];
         const Row& few = &many == &rows[0] ? rows[1] : rows[0];
-        std::printf("\n%s: %d threads are %.2fx as fast as %d for isouq, %.2fx for volumeToMesh (median times).\n\n",
+        // The ratio of each repeat's two calls too: calls next to each other share the machine's
+        // state (a host that slows one vCPU for a few seconds shows in one pair, not in a median).
+        std::vector<double> paired[2];
+        for (int a = 0; a < 2; ++a)
+            for (std::size_t r = 0; r < few.wall[a].size(); ++r) paired[a].push_back(few.wall[a][r] / many.wall[a][r]);
+        std::printf("\n%s: %d threads are %.2fx as fast as %d for isouq, %.2fx for volumeToMesh (median times); "
+                    "per repeat %.2fx (%.2f-%.2f) and %.2fx (%.2f-%.2f) (median, range).\n\n",
             caseName.c_str(), many.used, median(few.wall[0]) / median(many.wall[0]), few.used,
-            median(few.wall[1]) / median(many.wall[1]));
+            median(few.wall[1]) / median(many.wall[1]), median(paired[0]),
+            *std::min_element(paired[0].begin(), paired[0].end()), *std::max_element(paired[0].begin(), paired[0].end()),
+            median(paired[1]), *std::min_element(paired[1].begin(), paired[1].end()),
+            *std::max_element(paired[1].begin(), paired[1].end()));
     }
     std::fflush(stdout);
 }

@@ -81,24 +81,25 @@ void assignFresh(std::vector<T>& v, std::size_t n, const T& value, bool threaded
     v.assign(n, value);
 }
 
-/// An append-only list of trivially copyable records whose addresses never change: chunks of
-/// one 2 MiB page each, faulted in when taken (a growing std::vector faults in and copies about
-/// twice what it keeps). One per thread; not thread-safe.
+/// An append-only list of trivially copyable records whose addresses never change (a growing
+/// std::vector faults in and copies about twice what it keeps). Chunks double from 16 KiB (a
+/// small grid's list stays small) up to one 2 MiB page each, which is faulted in when taken.
+/// One per thread; not thread-safe.
 template <typename T>
 class ChunkList {
     static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T> && sizeof(T) <= kHugePage);
 
 public:
-    static constexpr std::size_t kPerChunk = kHugePage / sizeof(T);
-
     T& push(const T& value)
     {
-        if (mChunks.empty() || mLast == kPerChunk) {
-            void* chunk = std::aligned_alloc(kHugePage, kHugePage);
+        if (mChunks.empty() || mLast == capacity(mChunks.size() - 1)) {
+            const std::size_t records = capacity(mChunks.size()), bytes = records * sizeof(T);
+            const bool huge = records == kHugePage / sizeof(T);
+            void* chunk = huge ? std::aligned_alloc(kHugePage, kHugePage) : std::malloc(bytes);
             if (!chunk) throw std::bad_alloc();
             mChunks.emplace_back(static_cast<T*>(chunk));
-            ::madvise(chunk, kHugePage, MADV_HUGEPAGE);
-            populatePages(chunk, kHugePage, false);
+            if (huge) ::madvise(chunk, kHugePage, MADV_HUGEPAGE);
+            populatePages(chunk, bytes, false);
             mLast = 0;
         }
         return *new (mChunks.back().get() + mLast++) T(value);
@@ -108,10 +109,17 @@ public:
     void forEach(F&& f) const
     {
         for (std::size_t c = 0; c < mChunks.size(); ++c)
-            for (std::size_t i = 0, n = c + 1 == mChunks.size() ? mLast : kPerChunk; i < n; ++i) f(mChunks[c][i]);
+            for (std::size_t i = 0, n = c + 1 == mChunks.size() ? mLast : capacity(c); i < n; ++i) f(mChunks[c][i]);
     }
 
 private:
+    /// Records in chunk @a c.
+    static std::size_t capacity(std::size_t c)
+    {
+        constexpr std::size_t first = std::max<std::size_t>(1, (std::size_t(1) << 14) / sizeof(T));
+        constexpr std::size_t last = kHugePage / sizeof(T);
+        return c >= 8 ? last : std::min(last, first << c);
+    }
     struct Free {
         void operator()(T* p) const { std::free(p); }
     };
