@@ -1,4 +1,5 @@
-// isouq CLI: re-execution with glibc's malloc.hugetlb tunable for large inputs (HugePages.h).
+// isouq CLI: re-execution with glibc's malloc.hugetlb and arena_max tunables for large inputs
+// (HugePages.h).
 #include "HugePages.h"
 
 #include <sys/stat.h>
@@ -52,7 +53,11 @@ void useHugePagesForLargeInputs(int argc, char** argv)
     std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), thp);
     if (thp.empty() || thp.find("[never]") != std::string::npos) return;
     const std::string old = tunables ? tunables : "";
-    const std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
+    // One malloc arena: glibc gives huge pages to the main arena's heap only; a worker thread's
+    // own arena grows in 4 KiB steps and faulted in 17 000 more pages loading the 1 GiB scan
+    // (docs/mesher.md "Memory pages"). Its lock is taken only by allocations above tcache's.
+    std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
+    if (old.find("glibc.malloc.arena_max") == std::string::npos) value += ":glibc.malloc.arena_max=1";
     if (::setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
     ::execv("/proc/self/exe", argv);
     // The exec failed: go on in this process, with the environment as it was.

@@ -4,8 +4,9 @@
 namespace isouq::cli {
 
 /// When an argument names a regular file of 16 MiB or more, re-executes this program once with
-/// glibc's malloc.hugetlb=1 tunable added to GLIBC_TUNABLES (read by glibc only at start-up):
-/// malloc then asks for transparent huge pages (MADV_HUGEPAGE) on the memory it maps. A fresh
+/// glibc's malloc.hugetlb=1 and malloc.arena_max=1 tunables added to GLIBC_TUNABLES (read by
+/// glibc only at start-up): malloc then asks for transparent huge pages (MADV_HUGEPAGE) on the
+/// memory it maps, and every thread allocates from the main arena, the one that gets them. A fresh
 /// 4 KiB page costs about 10 us on the machines isouq is measured on, and loading a 1 GiB scan
 /// faults in 30 000 of them for its leaves alone. Does nothing when the tunable is already set
 /// (by the user or by the re-executed run), when ISOUQ_HUGE_PAGES=0, when the kernel's THP is
