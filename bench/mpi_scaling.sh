@@ -2,7 +2,8 @@
 # Strong scaling of `isouq mesh` on MPI ranks with one thread per rank, and per-rank peak memory
 # against one process (issue 15; docs/mpi.md). One process, -np 1 and -np 2 take turns R times
 # (so a drift of the machine shows in all three alike); prints every run, then the medians, the
-# speedup of -np 2 over -np 1 and the peak of a rank at -np 2 over one process's, and the load.
+# speedup of -np 2 over -np 1 and the peak of a rank at -np 2 over one process's, and the load;
+# and each MPI run's stages from its summary (load, measure, mesh).
 #   bench/mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS] [R]
 # The input is a level-set sphere made with pyopenvdb (radius 400 voxels: 12 M active voxels,
 # 3.0 M vertices, 6.0 M triangles); every run writes the same PLY, which the script checks. Each
@@ -30,6 +31,7 @@ for flags in "" "--linear-only"; do
   echo "== isouq mesh sphere$radius.vdb $flags -j 1, $repeats times ($(uptime | sed 's/.*load/load/'))"
   log=$work/runs$flags.txt
   : > "$log"
+  : > "$work/stages$flags.txt"
   for ((r = 0; r < repeats; ++r)); do
     rm -f "$work/one.ply"
     sync # no writeback of earlier outputs during the timed runs: the flusher takes a core
@@ -40,10 +42,14 @@ for flags in "" "--linear-only"; do
       "${mpirun[@]}" -np $np /usr/bin/time -f "np$np %e %M" -a -o "$log" \
         "$isouq" mesh "$input" -o "$work/np$np.ply" --summary "$work/np$np.json" $flags -q -j 1 >/dev/null
       cmp -s "$work/one.ply" "$work/np$np.ply" || { echo "np $np: the PLY differs"; exit 1; }
+      # Where the time went (rank 0's stages), so that a slow run shows its slow stage.
+      /usr/bin/python3 -c "import json, sys; t = json.load(open(sys.argv[1]))['timings_ms']
+print('   np$np stages: ' + ', '.join(f'{k} {v:.0f} ms' for k, v in t.items()))" "$work/np$np.json" >>"$work/stages$flags.txt"
       rm -f "$work/np$np.ply" # its dirty pages dropped, never written back
     done
   done
   sed 's/^/   run: /; s/ \([0-9.]*\) \([0-9]*\)$/ \1 s, peak \2 KB/' "$log"
+  cat "$work/stages$flags.txt"
   for who in one np1 np2; do
     printf '   %s: median %s s, peak %s KB\n' "$who" "$(awk -v w=$who '$1 == w {print $2}' "$log" | median)" \
       "$(awk -v w=$who '$1 == w {print $3}' "$log" | median)"

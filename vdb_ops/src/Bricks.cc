@@ -143,7 +143,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
         BlockScratch<TreeT>& s = scratch.local();
         const Coord& origin = blocks.origins[d.begin + i];
         if (!s.mayCross(origin, isovalue, sides)) return;
-        if (!s.gatherAndClassify(origin, isovalue, cellBox)) return;
+        if (!s.gatherBitsAndClassify(origin, isovalue, cellBox)) return;
         EdgeMask mask;
         countBlock(s, mask, d.counts[i]);
         if (!d.counts[i].empty()) found.local().push({std::int32_t(d.begin + i), mask});
