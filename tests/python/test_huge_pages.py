@@ -1,6 +1,7 @@
-"""The CLI's restart with glibc's malloc.hugetlb and arena_max tunables for large inputs (docs/mesher.md
-"Memory pages"; houdini_style_nodes/cli/HugePages.cc): counted by strace's execve records, and
-the restarted run's PLY byte-identical to a run without it."""
+"""The CLI's restart with glibc's malloc.hugetlb and arena_max tunables for large inputs
+(docs/mesher.md "Memory pages"; houdini_style_nodes/cli/HugePages.cc): counted by strace's
+execve records, which show the restarted environment, and the restarted run's PLY
+byte-identical to a run without it."""
 import os
 import shutil
 import subprocess

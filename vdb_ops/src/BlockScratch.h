@@ -113,8 +113,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     // the non-empty ones in one tree is serial (per-thread trees joined after were slower at 2
     // threads than at 1: bench/README.md "4 December 2026").
     std::vector<const LeafT*> leaves;
-    leaves.reserve(tree.leafCount());
-    populatePages(leaves.data(), leaves.capacity() * sizeof(const LeafT*), threaded);
+    reserveFresh(leaves, tree.leafCount(), threaded);
     tree.getNodes(leaves);
     std::vector<Coord> leafBlocks;
     resizeForFill(leafBlocks, leaves.size(), threaded);

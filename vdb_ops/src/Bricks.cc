@@ -149,9 +149,9 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
         if (!d.counts[i].empty()) found.local().push({std::int32_t(d.begin + i), mask});
     });
 
-    d.vertexOffsets.assign(blocks.origins.size() + 1, 0);
-    d.triangleOffsets.assign(n + 1, 0);
-    d.masks.byBlock.assign(blocks.origins.size(), nullptr);
+    assignFresh(d.vertexOffsets, blocks.origins.size() + 1, std::uint64_t(0), settings.threaded);
+    assignFresh(d.triangleOffsets, n + 1, std::uint64_t(0), settings.threaded);
+    assignFresh(d.masks.byBlock, blocks.origins.size(), static_cast<const EdgeMask*>(nullptr), settings.threaded);
     d.masks.owned.clear();
     std::uint64_t vertices = 0;
     for (std::size_t i = 0; i < n; ++i) {

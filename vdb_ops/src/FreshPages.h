@@ -56,29 +56,31 @@ inline void populatePages(const void* p, std::size_t bytes, bool threaded)
 #endif
 }
 
-/// Gives @a v n elements to be overwritten (their values unspecified): storage it already has
-/// is reused; new storage is faulted in first (populatePages).
+/// Gives @a v room for n elements: storage it already has is kept; new storage (its contents
+/// dropped) is faulted in first (populatePages).
+template <typename T>
+void reserveFresh(std::vector<T>& v, std::size_t n, bool threaded)
+{
+    if (n <= v.capacity()) return;
+    std::vector<T>().swap(v);
+    v.reserve(n);
+    populatePages(v.data(), n * sizeof(T), threaded);
+}
+
+/// Gives @a v n elements to be overwritten (their values unspecified).
 template <typename T>
 void resizeForFill(std::vector<T>& v, std::size_t n, bool threaded)
 {
     static_assert(std::is_trivially_copyable_v<T>);
-    if (n <= v.capacity()) return v.resize(n);
-    std::vector<T> fresh;
-    fresh.reserve(n);
-    populatePages(fresh.data(), n * sizeof(T), threaded);
-    fresh.resize(n);
-    v.swap(fresh);
+    reserveFresh(v, n, threaded);
+    v.resize(n);
 }
 
-/// @a v becomes n copies of @a value, in storage faulted in first when it is new.
+/// @a v becomes n copies of @a value.
 template <typename T>
 void assignFresh(std::vector<T>& v, std::size_t n, const T& value, bool threaded)
 {
-    if (n > v.capacity()) {
-        std::vector<T>().swap(v);
-        v.reserve(n);
-        populatePages(v.data(), n * sizeof(T), threaded);
-    }
+    reserveFresh(v, n, threaded);
     v.assign(n, value);
 }
 
@@ -91,7 +93,7 @@ class ChunkList {
     static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T> && sizeof(T) <= kHugePage);
 
 public:
-    T& push(const T& value)
+    void push(const T& value)
     {
         if (mChunks.empty() || mLast == capacity(mChunks.size() - 1)) {
             const std::size_t records = capacity(mChunks.size()), bytes = records * sizeof(T);
@@ -103,7 +105,7 @@ public:
             populatePages(chunk, bytes, false);
             mLast = 0;
         }
-        return *new (mChunks.back().get() + mLast++) T(value);
+        new (mChunks.back().get() + mLast++) T(value);
     }
 
     template <typename F>
