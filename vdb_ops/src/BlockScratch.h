@@ -79,7 +79,7 @@ using BlockIndexTree = openvdb::tree::Tree4<std::int32_t, 3, 3, 3>::Type;
 
 /// The blocks to visit, in a deterministic order, and a lookup from block to index.
 struct BlockSet {
-    std::vector<Coord> origins;
+    PageVector<Coord> origins;
     BlockIndexTree index{-1};
 
     std::int32_t find(const Coord& origin) const { return index.getValue(origin >> 3); }
@@ -90,15 +90,46 @@ struct BlockSet {
 /// 7 below (cells with an active corner, owned by the block of their lower corner).
 enum class BlockReach { Around, Below };
 
-/// Marks in @a coarse the blocks around (or up to) the blocks @a leafBlocks (leaf origins >> 3).
-inline void markBlocks(const std::vector<Coord>& leafBlocks, BlockIndexTree& coarse, BlockReach reach)
+/// Marks in @a coarse the blocks around (or up to) the blocks @a leafBlocks (leaf origins >> 3):
+/// only their value masks, as the blocks' values are set when they are numbered. The coarse
+/// leaves the marks fall in are made first, on one thread (a tree grows on one thread); then
+/// every thread ORs each leaf block's 3 x 3 (or 2 x 2) z-rows of bits into them, one 64-bit word
+/// (an x-slice of a coarse leaf) at a time, atomically, as neighbouring leaf blocks share words.
+inline void markBlocks(const PageVector<Coord>& leafBlocks, BlockIndexTree& coarse, BlockReach reach, bool threaded)
 {
-    openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
+    using CoarseLeaf = BlockIndexTree::LeafNodeType;
+    static_assert(CoarseLeaf::LOG2DIM == 3, "a coarse leaf's x-slice is one 64-bit mask word");
     const int to = reach == BlockReach::Around ? 1 : 0;
-    for (const Coord& b : leafBlocks)
-        for (int dx = -1; dx <= to; ++dx)
-            for (int dy = -1; dy <= to; ++dy)
-                for (int dz = -1; dz <= to; ++dz) acc.setValueOn(b.offsetBy(dx, dy, dz), 0);
+    // The coarse leaves [lo >> 3, hi >> 3] (one or two per axis) that [b - 1, b + to] reaches.
+    auto forEachLeaf = [&](const Coord& b, auto&& f) {
+        const Coord lo = b.offsetBy(-1), hi = b.offsetBy(to), cLo = lo >> 3, cHi = hi >> 3;
+        for (int cx = cLo[0]; cx <= cHi[0]; ++cx)
+            for (int cy = cLo[1]; cy <= cHi[1]; ++cy)
+                for (int cz = cLo[2]; cz <= cHi[2]; ++cz) f(Coord(cx * 8, cy * 8, cz * 8), lo, hi);
+    };
+    {
+        openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
+        for (const Coord& b : leafBlocks) forEachLeaf(b, [&](const Coord& leaf, const Coord&, const Coord&) { acc.touchLeaf(leaf); });
+    }
+    auto mark = [&](const tbb::blocked_range<std::size_t>& r) {
+        openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse); // finds leaves; adds none
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            forEachLeaf(leafBlocks[i], [&](const Coord& leaf, const Coord& lo, const Coord& hi) {
+                const Coord from = Coord::maxComponent(lo, leaf) - leaf;
+                const Coord until = Coord::minComponent(hi, leaf.offsetBy(7)) - leaf;
+                // Bit y * 8 + z of word x is voxel (x, y, z) of the coarse leaf.
+                const std::uint64_t zRow = ((std::uint64_t(2) << (until[2] - from[2])) - 1) << from[2];
+                std::uint64_t rows = 0;
+                for (int y = from[1]; y <= until[1]; ++y) rows |= zRow << (8 * y);
+                CoarseLeaf* node = acc.probeLeaf(leaf);
+                for (int x = from[0]; x <= until[0]; ++x)
+                    __atomic_fetch_or(&node->getValueMask().template getWord<std::uint64_t>(x), rows, __ATOMIC_RELAXED);
+            });
+        }
+    };
+    const tbb::blocked_range<std::size_t> all(0, leafBlocks.size(), 1024);
+    if (threaded) tbb::parallel_for(all, mark);
+    else mark(all);
 }
 
 template <typename TreeT>
@@ -106,16 +137,13 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
 {
     using LeafT = typename TreeT::LeafNodeType;
     BlockIndexTree& coarse = blocks.index;
-    // The 27 blocks around (or the 8 up to) each leaf, set one by one: on a small grid this is
-    // several times cheaper than a tools::dilateActiveValues of the leaves' blocks, which it
-    // equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency"). Reading the
-    // leaves (a cache miss each) is most of it and runs on every thread; marking the blocks of
-    // the non-empty ones in one tree is serial (per-thread trees joined after were slower at 2
-    // threads than at 1: bench/README.md "4 December 2026").
-    std::vector<const LeafT*> leaves;
+    // The 27 blocks around (or the 8 up to) each leaf, marked in the coarse tree (markBlocks): on
+    // a small grid this is several times cheaper than a tools::dilateActiveValues of the leaves'
+    // blocks, which it equals (the coarse tree has no tiles yet; issue 12, "Small-grid latency").
+    PageVector<const LeafT*> leaves;
     reserveFresh(leaves, tree.leafCount(), threaded);
     tree.getNodes(leaves);
-    std::vector<Coord> leafBlocks;
+    PageVector<Coord> leafBlocks;
     resizeForFill(leafBlocks, leaves.size(), threaded);
     auto origins = [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i)
@@ -125,7 +153,7 @@ void buildBlockSet(const TreeT& tree, BlockSet& blocks, bool threaded, BlockReac
     if (threaded) tbb::parallel_for(allLeaves, origins);
     else origins(allLeaves);
     leafBlocks.erase(std::remove(leafBlocks.begin(), leafBlocks.end(), Coord::max()), leafBlocks.end());
-    markBlocks(leafBlocks, coarse, reach);
+    markBlocks(leafBlocks, coarse, reach, threaded);
     bool tiles = false;
     // Active tiles: only the blocks within one voxel of a tile's border can hold a crossing
     // between the tile and its surroundings; the tile's interior is constant and is skipped.
@@ -206,7 +234,7 @@ public:
     }
 
     /// False when every region the gather would read is on the same side of the isovalue.
-    bool mayCross(const Coord& origin, float isovalue, const std::vector<std::uint8_t>& sides)
+    bool mayCross(const Coord& origin, float isovalue, const PageVector<std::uint8_t>& sides)
     {
         int seen = -1;
         for (int bx = firstBlock(); bx <= lastBlock(); ++bx)

@@ -24,9 +24,9 @@ struct BrickMesherData {
     MeshSettings settings;
     const BrickPlan& plan;
     std::size_t begin, end;
-    std::vector<BlockCounts> counts;          // per block of the piece
-    std::vector<std::uint64_t> vertexOffsets; // per block of the order: the whole mesh's
-    std::vector<std::uint64_t> triangleOffsets; // per block of the piece, then the total
+    PageVector<BlockCounts> counts;          // per block of the piece
+    PageVector<std::uint64_t> vertexOffsets; // per block of the order: the whole mesh's
+    PageVector<std::uint64_t> triangleOffsets; // per block of the piece, then the total
     FoundMasks found;                         // the piece's masks, as the count pass found them
     EdgeMasks masks;                          // slots for the order's blocks
     std::uint64_t vertices = 0, firstVertex = 0, firstTriangle = 0;
@@ -44,7 +44,7 @@ void planPieces(const TreeT& tree, int pieces, bool threaded, BrickPlanData& dat
 {
     if (pieces < 1) OPENVDB_THROW(openvdb::ValueError, "a brick plan needs at least one piece");
     buildBlockSet(tree, data.blocks, threaded);
-    const std::vector<Coord>& origins = data.blocks.origins;
+    const PageVector<Coord>& origins = data.blocks.origins;
     // Leaves by iteration, not by accessor: an accessor that finds a leaf caches its values,
     // which loads a delay-loaded buffer. The value masks are topology.
     std::vector<std::uint64_t> prefix(origins.size() + 1, 1);
@@ -131,7 +131,8 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
 
     // The sides of the piece's blocks; the others read as mixed, which only means that a block
     // next to them is gathered rather than skipped (mayCross is a shortcut, never a decision).
-    std::vector<std::uint8_t> sides(blocks.origins.size(), kMixed);
+    PageVector<std::uint8_t> sides;
+    assignFresh(sides, blocks.origins.size(), std::uint8_t(kMixed), settings.threaded);
     forEachBlock(n, settings.threaded, interrupter, done, 3 * n, [&](std::size_t i) {
         sides[d.begin + i] = scratch.local().regionSide(blocks.origins[d.begin + i], isovalue);
     });

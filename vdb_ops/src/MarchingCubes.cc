@@ -46,9 +46,9 @@ private:
 namespace mc_internal {
 /// What an IsosurfaceMesher keeps between calls.
 struct MesherBuffers {
-    std::vector<std::uint8_t> sides;
-    std::vector<BlockCounts> counts;
-    std::vector<std::uint64_t> vertexOffsets, triangleOffsets;
+    PageVector<std::uint8_t> sides;
+    PageVector<BlockCounts> counts;
+    PageVector<std::uint64_t> vertexOffsets, triangleOffsets;
     EdgeMasks masks;
 };
 } // namespace mc_internal
@@ -103,7 +103,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     const std::size_t work = 3 * blockCount;
 
     // Which side of the isovalue each block lies on, so blocks far from the surface cost little.
-    std::vector<std::uint8_t>& sides = buffers.sides;
+    PageVector<std::uint8_t>& sides = buffers.sides;
     assignFresh(sides, blockCount, std::uint8_t(0), threaded);
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         sides[b] = scratch.local().regionSide(blocks.origins[b], isovalue);
@@ -111,7 +111,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     clock.lap(mStageTimes.sides);
 
     // Count pass: per block its counts; the edge masks of non-empty blocks go to per-thread lists.
-    std::vector<BlockCounts>& counts = buffers.counts;
+    PageVector<BlockCounts>& counts = buffers.counts;
     assignFresh(counts, blockCount, BlockCounts{}, threaded);
     FoundMasks found;
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
@@ -126,8 +126,8 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
 
     // Prefix sums: each block's place in the output. Integer sums, so a parallel scan gives the
     // same offsets as a serial loop whatever the thread count.
-    std::vector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
-    std::vector<std::uint64_t>& triangleOffsets = buffers.triangleOffsets;
+    PageVector<std::uint64_t>& vertexOffsets = buffers.vertexOffsets;
+    PageVector<std::uint64_t>& triangleOffsets = buffers.triangleOffsets;
     resizeForFill(vertexOffsets, blockCount + 1, threaded);
     resizeForFill(triangleOffsets, blockCount + 1, threaded);
     struct Sums {

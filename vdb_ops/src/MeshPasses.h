@@ -71,7 +71,7 @@ using FoundMasks = tbb::enumerable_thread_specific<ChunkList<FoundMask>>;
 /// The edge masks of the non-empty blocks, found by block index. The masks stay in the count
 /// pass's per-thread lists (FoundMasks); a brick keeps its neighbours' in `owned`.
 struct EdgeMasks {
-    std::vector<const EdgeMask*> byBlock; // null for a block without vertices or triangles
+    PageVector<const EdgeMask*> byBlock; // null for a block without vertices or triangles
     std::deque<EdgeMask> owned;           // a deque: pointers into it stay valid as it grows
 
     const EdgeMask& of(std::int32_t block) const { return *byBlock[std::size_t(block)]; }
@@ -142,7 +142,7 @@ void fillVertices(const BlockScratch<TreeT>& s, const Coord& origin, const EdgeM
 /// Global vertex index of cube edge @a e of the cell at (x, y, z) in the block, using the block
 /// and its + neighbours (neighbours[dx][dy][dz], dx, dy, dz in {0, 1}).
 inline std::uint32_t vertexOf(int x, int y, int z, int e, const std::int32_t (&neighbours)[2][2][2],
-    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets)
+    const EdgeMasks& masks, const PageVector<std::uint64_t>& vertexOffsets)
 {
     const McEdge& edge = kMcEdges[e];
     const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
@@ -154,7 +154,7 @@ inline std::uint32_t vertexOf(int x, int y, int z, int e, const std::int32_t (&n
 
 template <typename TreeT>
 void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours)[2][2][2],
-    const EdgeMasks& masks, const std::vector<std::uint64_t>& vertexOffsets, bool flip, openvdb::Vec3I* out)
+    const EdgeMasks& masks, const PageVector<std::uint64_t>& vertexOffsets, bool flip, openvdb::Vec3I* out)
 {
     forEachCandidateCell(s, 0, [&](int x, int y, int z, int cubeCase) {
         const auto& edges = kMcCases.triangleEdges[cubeCase];

@@ -1,0 +1,102 @@
+// The mesher's block set (vdb_ops/src/BlockScratch.h, SPEC §9): the blocks around (or up to)
+// every leaf with an active voxel, marked in parallel, against a brute-force set of the same
+// blocks; and the huge-page storage of its per-block arrays (FreshPages.h).
+#include "BlockScratch.h"
+
+#include <openvdb/openvdb.h>
+
+#include <catch2/catch.hpp>
+
+#include <tbb/global_control.h>
+
+#include <cstdint>
+#include <random>
+#include <set>
+#include <tuple>
+
+using isouq::mc_internal::BlockReach;
+using isouq::mc_internal::BlockSet;
+using isouq::mc_internal::PageVector;
+using openvdb::Coord;
+
+namespace {
+
+using Key = std::tuple<int, int, int>;
+
+/// Leaves at random places around the origin, many on the borders of the block index's coarse
+/// leaves (64 voxels), negative coordinates included; some leaves are emptied again.
+openvdb::FloatTree randomLeaves(unsigned seed, int count)
+{
+    openvdb::FloatTree tree(0.f);
+    std::mt19937 rng(seed);
+    std::uniform_int_distribution<int> coarse(-3, 3), inside(0, 7), edge(0, 3);
+    for (int i = 0; i < count; ++i) {
+        Coord block;
+        for (int a = 0; a < 3; ++a) {
+            const int e = edge(rng); // 0: first block of a coarse leaf, 1: last, else anywhere
+            block[a] = coarse(rng) * 8 + (e == 0 ? 0 : e == 1 ? 7 : inside(rng));
+        }
+        const Coord voxel(block[0] * 8 + inside(rng), block[1] * 8 + inside(rng), block[2] * 8 + inside(rng));
+        tree.setValueOn(voxel, 1.f);
+        if (i % 7 == 0) tree.setValueOff(voxel); // a leaf with no active voxel: no blocks
+    }
+    return tree;
+}
+
+std::set<Key> bruteForce(const openvdb::FloatTree& tree, BlockReach reach)
+{
+    std::set<Key> blocks;
+    const int to = reach == BlockReach::Around ? 1 : 0;
+    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+        if (leaf->isEmpty()) continue;
+        const Coord b = leaf->origin() >> 3;
+        for (int dx = -1; dx <= to; ++dx)
+            for (int dy = -1; dy <= to; ++dy)
+                for (int dz = -1; dz <= to; ++dz) blocks.insert({8 * (b[0] + dx), 8 * (b[1] + dy), 8 * (b[2] + dz)});
+    }
+    return blocks;
+}
+
+} // namespace
+
+TEST_CASE("BlockSet: the marked blocks are the brute-force neighbourhoods of the leaves", "[blocks]")
+{
+    for (unsigned seed = 1; seed <= 6; ++seed) {
+        const openvdb::FloatTree tree = randomLeaves(seed, seed < 4 ? 60 : 3000);
+        for (BlockReach reach : {BlockReach::Around, BlockReach::Below}) {
+            const std::set<Key> expected = bruteForce(tree, reach);
+            std::vector<Coord> first;
+            for (int threads : {1, 2, 4}) {
+                tbb::global_control control(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+                BlockSet blocks;
+                isouq::mc_internal::buildBlockSet(tree, blocks, threads > 1, reach);
+                CAPTURE(seed, int(reach), threads);
+                std::set<Key> got;
+                for (std::size_t i = 0; i < blocks.origins.size(); ++i) {
+                    const Coord& o = blocks.origins[i];
+                    got.insert({o[0], o[1], o[2]});
+                    REQUIRE(blocks.find(o) == std::int32_t(i));
+                }
+                REQUIRE(got.size() == blocks.origins.size());
+                REQUIRE(got == expected);
+                REQUIRE(blocks.find(Coord(8 * 1000, 0, 0)) == -1);
+                // The same numbering whatever the thread count.
+                if (first.empty()) first.assign(blocks.origins.begin(), blocks.origins.end());
+                else REQUIRE(std::equal(first.begin(), first.end(), blocks.origins.begin(), blocks.origins.end()));
+            }
+        }
+    }
+}
+
+TEST_CASE("BlockSet: a per-block array of 1 MiB or more lies in whole 2 MiB pages", "[blocks][pages]")
+{
+    PageVector<std::uint64_t> big, small;
+    isouq::mc_internal::assignFresh(big, (std::size_t(3) << 20) / 8, std::uint64_t(7), true);
+    isouq::mc_internal::assignFresh(small, 1000, std::uint64_t(7), true);
+    REQUIRE(reinterpret_cast<std::uintptr_t>(big.data()) % (std::uintptr_t(1) << 21) == 0);
+    REQUIRE(std::count(big.begin(), big.end(), std::uint64_t(7)) == std::ptrdiff_t(big.size()));
+    REQUIRE(std::count(small.begin(), small.end(), std::uint64_t(7)) == 1000);
+    big.push_back(8); // grows through the allocator's larger request
+    REQUIRE(big.back() == 8);
+    REQUIRE(big[0] == 7);
+}
