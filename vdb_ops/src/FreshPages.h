@@ -74,7 +74,7 @@ inline void populatePages(const std::vector<FreshRange>& ranges, bool threaded)
 
 inline void populatePages(const void* p, std::size_t bytes, bool threaded)
 {
-    populatePages(std::vector<FreshRange>{{p, bytes}}, threaded);
+    if (bytes >= kPopulateFrom) populatePages(std::vector<FreshRange>{{p, bytes}}, threaded);
 }
 
 /// The allocator of PageVector: a request of 1 MiB or more takes whole 2 MiB pages, advised

@@ -3,8 +3,6 @@
 // (paper sec. 4.1, SPEC §3) and the method differences. Used by MarchingCubes.cc only.
 #pragma once
 
-#include <chrono>
-#include <cstdio>
 #include "isouq/EdgeInterp.h"
 #include "isouq/Columns.h"
 #include "isouq/ErrorEstimate.h"
@@ -93,10 +91,7 @@ struct VertexColumns {
         fresh.push_back(reserveUnpopulated(mesh.triangles, triangles));
         for (Attribute& column : a.columns())
             std::visit([&](auto& v) { fresh.push_back(reserveUnpopulated(v, vertices)); }, column.data);
-        auto T0 = std::chrono::steady_clock::now();
         populatePages(fresh, threaded);
-        if (getenv("ISOUQ_PROBE")) fprintf(stderr, "populate %.2f\n", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - T0).count());
-        T0 = std::chrono::steady_clock::now();
         auto size = [&](std::size_t i) { // 0 positions, 1 triangles, then the vertex columns
             if (i == 0) mesh.positions.resize(vertices);
             else if (i == 1) mesh.triangles.resize(triangles);
@@ -105,7 +100,6 @@ struct VertexColumns {
         const std::size_t count = 2 + a.columns().size();
         if (threaded) tbb::parallel_for(std::size_t(0), count, size);
         else for (std::size_t i = 0; i < count; ++i) size(i);
-        if (getenv("ISOUQ_PROBE")) fprintf(stderr, "zero %.2f\n", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - T0).count());
 
         VertexColumns c;
         c.positions = mesh.positions.data();
