@@ -16,6 +16,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <memory>
 #include <new>
 #include <type_traits>
@@ -77,11 +78,38 @@ inline void populatePages(const void* p, std::size_t bytes, bool threaded)
     if (bytes >= kPopulateFrom) populatePages(std::vector<FreshRange>{{p, bytes}}, threaded);
 }
 
-/// The allocator of PageVector: a request of 1 MiB or more takes whole 2 MiB pages, advised
-/// MADV_HUGEPAGE, so that faulting it in costs a huge page fault per 2 MiB rather than 512 small
-/// ones (0.15-0.3 ms against 2-4 ms here, as the mesher's per-block arrays of 1-2 MB at N = 1024
-/// showed: bench/README.md "4 December 2026, 15:02"). At most one 2 MiB page per array is left
-/// partly unused. Smaller requests come from malloc.
+/// Whether this build runs under a sanitizer, which should see every array as heap memory.
+constexpr bool kSanitized =
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+    true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
+    true;
+#else
+    false;
+#endif
+#else
+    false;
+#endif
+
+/// Whether malloc's heap comes in huge pages already: glibc's glibc.malloc.hugetlb tunable, read
+/// at process start (the CLI sets it for large inputs: docs/mesher.md "Memory pages").
+inline bool mallocHasHugePages()
+{
+    static const bool set = [] {
+        const char* t = std::getenv("GLIBC_TUNABLES");
+        return t && (std::strstr(t, "glibc.malloc.hugetlb=1") || std::strstr(t, "glibc.malloc.hugetlb=2"));
+    }();
+    return set;
+}
+
+/// The allocator of PageVector: a request of 1 MiB or more is mapped on its own in whole 2 MiB
+/// pages, advised MADV_HUGEPAGE, so that faulting it in costs a huge-page fault per 2 MiB rather
+/// than 512 small ones (the mesher's per-block arrays of 1-2 MB at N = 1024: bench/README.md
+/// "4 December 2026, 15:02"). At most one 2 MiB page per array is partly unused. Smaller
+/// requests come from malloc, and so does every request under a sanitizer (which checks heap
+/// arrays) or when malloc's heap is in huge pages already: it then reuses what the run freed
+/// before (the 1 GiB raw scan's peak was 5-10 MB higher with the arrays mapped on their own).
 template <typename T>
 struct HugePageAllocator {
     using value_type = T;
@@ -91,21 +119,41 @@ struct HugePageAllocator {
 
     T* allocate(std::size_t n)
     {
+        if (n > std::size_t(-1) / 2 / sizeof(T)) throw std::bad_alloc();
         const std::size_t bytes = n * sizeof(T);
-        const std::size_t huge = (bytes + kHugePage - 1) & ~(kHugePage - 1);
-        void* p = bytes >= kHugeArrayFrom ? std::aligned_alloc(kHugePage, huge) : std::malloc(bytes);
-        if (!p) throw std::bad_alloc();
+        if (fromMalloc(bytes)) {
+            void* p = std::malloc(std::max<std::size_t>(bytes, 1));
+            if (!p) throw std::bad_alloc();
+            return static_cast<T*>(p);
+        }
+        const std::size_t huge = roundUp(bytes);
+        void* raw = ::mmap(nullptr, huge + kHugePage, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        if (raw == MAP_FAILED) throw std::bad_alloc();
+        // Keep the 2 MiB-aligned stretch of `huge` bytes; unmap the rest.
+        const std::uintptr_t from = reinterpret_cast<std::uintptr_t>(raw), to = from + huge + kHugePage;
+        const std::uintptr_t start = (from + kHugePage - 1) & ~(kHugePage - 1);
+        if (start > from) ::munmap(raw, start - from);
+        if (to > start + huge) ::munmap(reinterpret_cast<void*>(start + huge), to - start - huge);
 #if defined(MADV_HUGEPAGE)
-        if (bytes >= kHugeArrayFrom) ::madvise(p, huge, MADV_HUGEPAGE);
+        ::madvise(reinterpret_cast<void*>(start), huge, MADV_HUGEPAGE);
 #endif
-        return static_cast<T*>(p);
+        return reinterpret_cast<T*>(start);
     }
-    void deallocate(T* p, std::size_t) { std::free(p); }
+    void deallocate(T* p, std::size_t n)
+    {
+        const std::size_t bytes = n * sizeof(T);
+        if (fromMalloc(bytes)) std::free(p);
+        else ::munmap(p, roundUp(bytes));
+    }
 
     template <typename U>
     bool operator==(const HugePageAllocator<U>&) const { return true; }
     template <typename U>
     bool operator!=(const HugePageAllocator<U>&) const { return false; }
+
+private:
+    static bool fromMalloc(std::size_t bytes) { return kSanitized || bytes < kHugeArrayFrom || mallocHasHugePages(); }
+    static std::size_t roundUp(std::size_t bytes) { return (bytes + kHugePage - 1) & ~(kHugePage - 1); }
 };
 
 /// A per-block array of the mesher (block origins, counts, offsets, mask pointers).
