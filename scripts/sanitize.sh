@@ -4,7 +4,7 @@
 #                                  build-asan/, then the whole ctest suite (Catch2, Python,
 #                                  find_package consumer, Blender add-on: they run the
 #                                  sanitized CLI; Blender itself is not sanitized).
-#   scripts/sanitize.sh thread     ThreadSanitizer in build-tsan/: the threaded mesher, the
+#   scripts/sanitize.sh thread     ThreadSanitizer in build-tsan/: the threaded mesher and block set, the
 #                                  mesh measures (a union-find with atomics), the PLY writer (a
 #                                  task formats while a chunk is written), hidden features,
 #                                  the CLI contract and, with MPI, isouq under mpirun (ctest -R).
@@ -73,7 +73,7 @@ thread)
     { echo "isouq: sanitize: the TSan isouq does not load $tbb/lib/libtbb.so.12" >&2; exit 1; }
   export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$root/scripts/sanitizers/tsan.supp"
   cd "$build"
-  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'MarchingCubes|MeshTopology|MeshIO|HiddenFeatures|CliContract|^mpi_'
+  ctest --output-on-failure -j"$jobs" --timeout 1800 -R 'BlockSet|MarchingCubes|MeshTopology|MeshIO|HiddenFeatures|CliContract|^mpi_'
   ;;
 *)
   echo "usage: scripts/sanitize.sh [address|thread]" >&2
