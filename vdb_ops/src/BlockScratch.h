@@ -109,7 +109,8 @@ inline void markBlocks(const PageVector<Coord>& leafBlocks, BlockIndexTree& coar
     };
     {
         openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse);
-        for (const Coord& b : leafBlocks) forEachLeaf(b, [&](const Coord& leaf, const Coord&, const Coord&) { acc.touchLeaf(leaf); });
+        for (const Coord& b : leafBlocks)
+            forEachLeaf(b, [&](const Coord& leaf, const Coord&, const Coord&) { acc.touchLeaf(leaf); });
     }
     auto mark = [&](const tbb::blocked_range<std::size_t>& r) {
         openvdb::tree::ValueAccessor<BlockIndexTree, false> acc(coarse); // finds leaves; adds none

@@ -24,11 +24,11 @@ struct BrickMesherData {
     MeshSettings settings;
     const BrickPlan& plan;
     std::size_t begin, end;
-    PageVector<BlockCounts> counts;          // per block of the piece
-    PageVector<std::uint64_t> vertexOffsets; // per block of the order: the whole mesh's
+    PageVector<BlockCounts> counts;            // per block of the piece
+    PageVector<std::uint64_t> vertexOffsets;   // per block of the order: the whole mesh's
     PageVector<std::uint64_t> triangleOffsets; // per block of the piece, then the total
-    FoundMasks found;                         // the piece's masks, as the count pass found them
-    EdgeMasks masks;                          // slots for the order's blocks
+    FoundMasks found;                          // the piece's masks, as the count pass found them
+    EdgeMasks masks;                           // slots for the order's blocks
     std::uint64_t vertices = 0, firstVertex = 0, firstTriangle = 0;
     bool counted = false, placed = false;
 };

@@ -72,7 +72,7 @@ using FoundMasks = tbb::enumerable_thread_specific<ChunkList<FoundMask>>;
 /// pass's per-thread lists (FoundMasks); a brick keeps its neighbours' in `owned`.
 struct EdgeMasks {
     PageVector<const EdgeMask*> byBlock; // null for a block without vertices or triangles
-    std::deque<EdgeMask> owned;           // a deque: pointers into it stay valid as it grows
+    std::deque<EdgeMask> owned;          // a deque: pointers into it stay valid as it grows
 
     const EdgeMask& of(std::int32_t block) const { return *byBlock[std::size_t(block)]; }
     void own(std::int64_t block, const EdgeMask& mask)
