@@ -8,6 +8,7 @@
 #pragma once
 
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <sys/mman.h>
 #include <unistd.h>
@@ -29,53 +30,37 @@ constexpr std::size_t kPopulateFrom = std::size_t(1) << 16;   // smaller: a few 
 constexpr std::size_t kHugeFrom = 4 * kHugePage;                // 8 MiB: advised 2 MiB pages
 constexpr std::size_t kHugeArrayFrom = kHugePage / 2;           // 1 MiB: a PageVector in 2 MiB pages
 
-/// A stretch of this process's own writable memory to fault in.
-struct FreshRange {
-    const void* p = nullptr;
-    std::size_t bytes = 0;
-};
-
-/// Faults in the pages of @a ranges; the whole 2 MiB pages inside a range of 8 MiB or more are
-/// first advised MADV_HUGEPAGE (THP "madvise", Debian's default, or "always"). Pages another
-/// allocation shares are only faulted in, never written. The ranges are cut into 2 MiB pieces
-/// (on 2 MiB boundaries) that the threads share: one parallel loop for all of them, so that an
-/// output's columns are faulted in side by side without nested loops. A kernel without
-/// MADV_POPULATE_WRITE (before 5.14) faults on first write.
-inline void populatePages(const std::vector<FreshRange>& ranges, bool threaded)
-{
-#if defined(MADV_POPULATE_WRITE)
-    struct Piece {
-        std::uintptr_t from, to;
-    };
-    std::vector<Piece> pieces;
-    const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
-    for (const FreshRange& r : ranges) {
-        if (r.bytes < kPopulateFrom) continue;
-        const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(r.p) & ~(page - 1);
-        const std::uintptr_t hi = (reinterpret_cast<std::uintptr_t>(r.p) + r.bytes + page - 1) & ~(page - 1);
-        if (r.bytes >= kHugeFrom) {
-            const std::uintptr_t hugeLo = (lo + kHugePage - 1) & ~(kHugePage - 1), hugeHi = hi & ~(kHugePage - 1);
-            if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
-        }
-        for (std::uintptr_t from = lo; from < hi;) {
-            const std::uintptr_t to = std::min(hi, (from / kHugePage + 1) * kHugePage);
-            pieces.push_back({from, to});
-            from = to;
-        }
-    }
-    auto populate = [&](std::size_t i) {
-        ::madvise(reinterpret_cast<void*>(pieces[i].from), pieces[i].to - pieces[i].from, MADV_POPULATE_WRITE);
-    };
-    if (threaded && pieces.size() > 1) tbb::parallel_for(std::size_t(0), pieces.size(), populate);
-    else for (std::size_t i = 0; i < pieces.size(); ++i) populate(i);
-#else
-    (void)ranges, (void)threaded;
-#endif
-}
-
+/// Faults in the pages of [p, p + bytes), which must be this process's own writable memory; the
+/// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more (THP
+/// "madvise", Debian's default, or "always"). Pages another allocation shares are only faulted
+/// in, never written. A kernel without MADV_POPULATE_WRITE (before 5.14) faults on first write.
 inline void populatePages(const void* p, std::size_t bytes, bool threaded)
 {
-    if (bytes >= kPopulateFrom) populatePages(std::vector<FreshRange>{{p, bytes}}, threaded);
+#if defined(MADV_POPULATE_WRITE)
+    if (bytes < kPopulateFrom) return;
+    const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
+    const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(p) & ~(page - 1);
+    const std::uintptr_t hi = (reinterpret_cast<std::uintptr_t>(p) + bytes + page - 1) & ~(page - 1);
+    if (bytes >= kHugeFrom) {
+        const std::uintptr_t hugeLo = (lo + kHugePage - 1) & ~(kHugePage - 1), hugeHi = hi & ~(kHugePage - 1);
+        if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
+    }
+    // Pieces of 2 MiB (on 2 MiB boundaries), so that the threads share the zeroing. Isolated: a
+    // caller's task (one output column of several) waits for its own pieces only and does not
+    // take up a sibling task meanwhile, which ran the columns one after the other (at N = 1024,
+    // 15 ms instead of 8: bench/README.md "4 December 2026, 15:02").
+    const std::size_t pieces = (hi - 1) / kHugePage - lo / kHugePage + 1;
+    auto populate = [&](std::size_t i) {
+        const std::uintptr_t from = std::max(lo, (lo / kHugePage + i) * kHugePage);
+        const std::uintptr_t to = std::min(hi, (lo / kHugePage + i + 1) * kHugePage);
+        ::madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
+    };
+    if (threaded && pieces > 1)
+        tbb::this_task_arena::isolate([&] { tbb::parallel_for(std::size_t(0), pieces, populate); });
+    else for (std::size_t i = 0; i < pieces; ++i) populate(i);
+#else
+    (void)p, (void)bytes, (void)threaded;
+#endif
 }
 
 /// Whether this build runs under a sanitizer, which should see every array as heap memory.
@@ -160,24 +145,15 @@ private:
 template <typename T>
 using PageVector = std::vector<T, HugePageAllocator<T>>;
 
-/// Gives @a v room for n elements: storage it already has is kept (the range returned is then
-/// empty); new storage (its contents dropped) is returned, still to be faulted in.
-template <typename T, typename A>
-FreshRange reserveUnpopulated(std::vector<T, A>& v, std::size_t n)
-{
-    if (n <= v.capacity()) return {};
-    std::vector<T, A>().swap(v);
-    v.reserve(n);
-    return {v.data(), n * sizeof(T)};
-}
-
 /// Gives @a v room for n elements: storage it already has is kept; new storage (its contents
 /// dropped) is faulted in first (populatePages).
 template <typename T, typename A>
 void reserveFresh(std::vector<T, A>& v, std::size_t n, bool threaded)
 {
-    const FreshRange fresh = reserveUnpopulated(v, n);
-    populatePages(fresh.p, fresh.bytes, threaded);
+    if (n <= v.capacity()) return;
+    std::vector<T, A>().swap(v);
+    v.reserve(n);
+    populatePages(v.data(), n * sizeof(T), threaded);
 }
 
 /// Gives @a v n elements to be overwritten (their values unspecified).

@@ -67,7 +67,8 @@ struct VertexColumns {
     float *dLc = nullptr, *dLw = nullptr, *dCw = nullptr, *maxVar = nullptr;
 
     /// Sizes positions, triangles and the columns this pass writes, drops the columns it does
-    /// not write (a reused mesh's leftovers), and points at them. The pointers are to
+    /// not write (a reused mesh's leftovers), and points at them. The columns are sized side by
+    /// side, a task each (resize()'s zero fill is serial within one column). The pointers are to
     /// the columns' storage, which moving a column (the table growing or shrinking) does not move.
     static VertexColumns allocate(Mesh& mesh, std::size_t vertices, std::size_t triangles, bool provenance,
         const MeshSettings& settings, bool threaded)
@@ -84,18 +85,10 @@ struct VertexColumns {
         a.retainOnly(std::vector<std::string>(names.begin(), names.end()));
         mesh.faceAttributes.clear();
 
-        // All columns' new storage is faulted in by one parallel loop, then each column is
-        // sized by a task of its own (resize()'s zero fill is serial within a column).
-        std::vector<FreshRange> fresh;
-        fresh.push_back(reserveUnpopulated(mesh.positions, vertices));
-        fresh.push_back(reserveUnpopulated(mesh.triangles, triangles));
-        for (Attribute& column : a.columns())
-            std::visit([&](auto& v) { fresh.push_back(reserveUnpopulated(v, vertices)); }, column.data);
-        populatePages(fresh, threaded);
         auto size = [&](std::size_t i) { // 0 positions, 1 triangles, then the vertex columns
-            if (i == 0) mesh.positions.resize(vertices);
-            else if (i == 1) mesh.triangles.resize(triangles);
-            else std::visit([&](auto& v) { v.resize(vertices); }, a.columns()[i - 2].data);
+            if (i == 0) resizeForFill(mesh.positions, vertices, threaded);
+            else if (i == 1) resizeForFill(mesh.triangles, triangles, threaded);
+            else std::visit([&](auto& v) { resizeForFill(v, vertices, threaded); }, a.columns()[i - 2].data);
         };
         const std::size_t count = 2 + a.columns().size();
         if (threaded) tbb::parallel_for(std::size_t(0), count, size);
