@@ -18,7 +18,6 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
-#include <memory>
 #include <new>
 #include <type_traits>
 #include <vector>
@@ -30,6 +29,9 @@ constexpr std::size_t kPopulateFrom = std::size_t(1) << 16;   // smaller: a few 
 constexpr std::size_t kHugeFrom = 4 * kHugePage;                // 8 MiB: advised 2 MiB pages
 constexpr std::size_t kHugeArrayFrom = kHugePage / 2;           // 1 MiB: a PageVector in 2 MiB pages
 
+/// @a x rounded up to a multiple of @a unit, a power of two.
+constexpr std::uintptr_t roundUp(std::uintptr_t x, std::uintptr_t unit) { return (x + unit - 1) & ~(unit - 1); }
+
 /// Faults in the pages of [p, p + bytes), which must be this process's own writable memory; the
 /// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more (THP
 /// "madvise", Debian's default, or "always"). Pages another allocation shares are only faulted
@@ -40,9 +42,9 @@ inline void populatePages(const void* p, std::size_t bytes, bool threaded)
     if (bytes < kPopulateFrom) return;
     const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
     const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(p) & ~(page - 1);
-    const std::uintptr_t hi = (reinterpret_cast<std::uintptr_t>(p) + bytes + page - 1) & ~(page - 1);
+    const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(p) + bytes, page);
     if (bytes >= kHugeFrom) {
-        const std::uintptr_t hugeLo = (lo + kHugePage - 1) & ~(kHugePage - 1), hugeHi = hi & ~(kHugePage - 1);
+        const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
         if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
     }
     // Pieces of 2 MiB (on 2 MiB boundaries), so that the threads share the zeroing. Isolated: a
@@ -111,12 +113,12 @@ struct HugePageAllocator {
             if (!p) throw std::bad_alloc();
             return static_cast<T*>(p);
         }
-        const std::size_t huge = roundUp(bytes);
+        const std::size_t huge = roundUp(bytes, kHugePage);
         void* raw = ::mmap(nullptr, huge + kHugePage, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
         if (raw == MAP_FAILED) throw std::bad_alloc();
         // Keep the 2 MiB-aligned stretch of `huge` bytes; unmap the rest.
         const std::uintptr_t from = reinterpret_cast<std::uintptr_t>(raw), to = from + huge + kHugePage;
-        const std::uintptr_t start = (from + kHugePage - 1) & ~(kHugePage - 1);
+        const std::uintptr_t start = roundUp(from, kHugePage);
         if (start > from) ::munmap(raw, start - from);
         if (to > start + huge) ::munmap(reinterpret_cast<void*>(start + huge), to - start - huge);
 #if defined(MADV_HUGEPAGE)
@@ -128,7 +130,7 @@ struct HugePageAllocator {
     {
         const std::size_t bytes = n * sizeof(T);
         if (fromMalloc(bytes)) std::free(p);
-        else ::munmap(p, roundUp(bytes));
+        else ::munmap(p, roundUp(bytes, kHugePage));
     }
 
     template <typename U>
@@ -138,10 +140,10 @@ struct HugePageAllocator {
 
 private:
     static bool fromMalloc(std::size_t bytes) { return kSanitized || bytes < kHugeArrayFrom || mallocHasHugePages(); }
-    static std::size_t roundUp(std::size_t bytes) { return (bytes + kHugePage - 1) & ~(kHugePage - 1); }
 };
 
-/// A per-block array of the mesher (block origins, counts, offsets, mask pointers).
+/// A per-block array of the mesher (block origins, counts, offsets, mask pointers), or a chunk of
+/// a ChunkList.
 template <typename T>
 using PageVector = std::vector<T, HugePageAllocator<T>>;
 
@@ -175,48 +177,39 @@ void assignFresh(std::vector<T, A>& v, std::size_t n, const T& value, bool threa
 
 /// An append-only list of trivially copyable records whose addresses never change (a growing
 /// std::vector faults in and copies about twice what it keeps). Chunks double from 16 KiB (a
-/// small grid's list stays small) up to one 2 MiB page each, which is faulted in when taken.
-/// One per thread; not thread-safe.
+/// small grid's list stays small) up to 512 KiB, then are one 2 MiB page each; each is a
+/// PageVector reserved and faulted in when taken, and never grows past what it reserved. One per
+/// thread; not thread-safe.
 template <typename T>
 class ChunkList {
-    static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T> && sizeof(T) <= kHugePage);
+    static_assert(std::is_trivially_copyable_v<T> && sizeof(T) <= kHugePage);
 
 public:
     void push(const T& value)
     {
-        if (mChunks.empty() || mLast == capacity(mChunks.size() - 1)) {
-            const std::size_t records = capacity(mChunks.size()), bytes = records * sizeof(T);
-            const bool huge = records == kHugePage / sizeof(T);
-            void* chunk = huge ? std::aligned_alloc(kHugePage, kHugePage) : std::malloc(bytes);
-            if (!chunk) throw std::bad_alloc();
-            mChunks.emplace_back(static_cast<T*>(chunk));
-            if (huge) ::madvise(chunk, kHugePage, MADV_HUGEPAGE);
-            populatePages(chunk, bytes, false);
-            mLast = 0;
+        if (mChunks.empty() || mChunks.back().size() == capacity(mChunks.size() - 1)) {
+            mChunks.emplace_back();
+            reserveFresh(mChunks.back(), capacity(mChunks.size() - 1), false);
         }
-        new (mChunks.back().get() + mLast++) T(value);
+        mChunks.back().push_back(value);
     }
 
     template <typename F>
     void forEach(F&& f) const
     {
-        for (std::size_t c = 0; c < mChunks.size(); ++c)
-            for (std::size_t i = 0, n = c + 1 == mChunks.size() ? mLast : capacity(c); i < n; ++i) f(mChunks[c][i]);
+        for (const PageVector<T>& chunk : mChunks)
+            for (const T& record : chunk) f(record);
     }
 
 private:
-    /// Records in chunk @a c.
+    /// Records in chunk @a c: from malloc while under kHugeArrayFrom, then a whole 2 MiB page.
     static std::size_t capacity(std::size_t c)
     {
         constexpr std::size_t first = std::max<std::size_t>(1, (std::size_t(1) << 14) / sizeof(T));
-        constexpr std::size_t last = kHugePage / sizeof(T);
-        return c >= 8 ? last : std::min(last, first << c);
+        const std::size_t records = first << std::min<std::size_t>(c, 7);
+        return records * sizeof(T) >= kHugeArrayFrom ? kHugePage / sizeof(T) : records;
     }
-    struct Free {
-        void operator()(T* p) const { std::free(p); }
-    };
-    std::vector<std::unique_ptr<T[], Free>> mChunks;
-    std::size_t mLast = 0; // records in the last chunk
+    std::vector<PageVector<T>> mChunks;
 };
 
 } // namespace isouq::mc_internal
