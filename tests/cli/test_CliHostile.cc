@@ -651,6 +651,14 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
         writeFile(dir / "series" / "s1", slice.substr(0, slice.size() - 7));
         requireRefused(runTimed("mesh series -k 30 -q -o out.ply", dir), "are left", {out});
     }
+    SECTION("an isouq without its GDCM module (GdcmServer.h) says so")
+    {
+        if (fs::exists(fs::path(ISOUQ_GDCM_MODULE_INSTALLED) / "libisouq_gdcm.so")) return; // installed: found there
+        fs::create_directories(dir / "bin");
+        fs::copy_file(ISOUQ_CLI, dir / "bin" / "isouq");
+        const CliResult r = runCli("-c " + quote("exec timeout 60 bin/isouq mesh series -k 30 -q -o out.ply"), dir, "bash");
+        requireRefused(r, "isouq's GDCM module libisouq_gdcm.so is in none of " + (dir / "bin").string(), {out});
+    }
     requireNoTemporaries(dir);
 }
 

@@ -320,3 +320,27 @@ def test_example_notebook(isouq, tmp_path):
     assert done.returncode == 0, done.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20000
     assert "above the 90th percentile" in done.stdout
+
+
+def test_dicom_loads_gdcm_on_first_use_and_meshes_as_the_cli(isouq, isouq_cli, tmp_path):
+    """GDCM is a module of its own (libisouq_gdcm.so, beside _core): `import isouq` does not load
+    it (its dictionary costs about 50 ms), the first DICOM series does, and the series meshes in
+    process to the CLI's PLY, bit for bit."""
+    pytest.importorskip("pydicom")
+    from test_formats_in import ISOVALUE, write_series
+    write_series(tmp_path / "series")
+    cli_summary(isouq_cli, tmp_path, tmp_path / "series", "--isovalue", ISOVALUE)
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(module_dir())!r})
+        maps = lambda: open("/proc/self/maps").read()
+        import isouq
+        print("gdcm after import:", "libgdcm" in maps())
+        m = isouq.mesh({str(tmp_path / "series")!r}, isovalue={ISOVALUE!r})
+        print("gdcm after the series:", "libisouq_gdcm.so" in maps() and "libgdcm" in maps())
+        m.write({str(tmp_path / "module.ply")!r})
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.splitlines() == ["gdcm after import: False", "gdcm after the series: True"]
+    assert (tmp_path / "module.ply").read_bytes() == (tmp_path / "cli.ply").read_bytes()

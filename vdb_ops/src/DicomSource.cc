@@ -4,21 +4,21 @@
 // each slice; world coordinates are DICOM's patient coordinates (LPS millimetres): column i
 // along the row cosines times the column spacing, row j along the column cosines times the row
 // spacing, slice k along the step between the first and the last positions.
+#include "GdcmServer.h"
 #include "Quarantine.h"
 #include "SourcesInternal.h"
 
-#include <gdcmImage.h>
-#include <gdcmImageReader.h>
-#include <gdcmScanner.h>
-#include <gdcmTrace.h>
+#include <dlfcn.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <optional>
 #include <set>
 #include <vector>
@@ -29,23 +29,6 @@ namespace {
 namespace fs = std::filesystem;
 
 using Vec3 = openvdb::Vec3d;
-
-std::optional<SampleType> sampleTypeOf(const gdcm::PixelFormat& format)
-{
-    switch (format.GetScalarType()) {
-    case gdcm::PixelFormat::UINT8: return SampleType::UInt8;
-    case gdcm::PixelFormat::INT8: return SampleType::Int8;
-    case gdcm::PixelFormat::UINT12:
-    case gdcm::PixelFormat::UINT16: return SampleType::UInt16;
-    case gdcm::PixelFormat::INT12:
-    case gdcm::PixelFormat::INT16: return SampleType::Int16;
-    case gdcm::PixelFormat::UINT32: return SampleType::UInt32;
-    case gdcm::PixelFormat::INT32: return SampleType::Int32;
-    case gdcm::PixelFormat::FLOAT32: return SampleType::Float32;
-    case gdcm::PixelFormat::FLOAT64: return SampleType::Float64;
-    default: return std::nullopt;
-    }
-}
 
 /// What isouq needs of one slice's header.
 struct Slice {
@@ -293,105 +276,86 @@ private:
     std::uint64_t mSize = 0;
 };
 
-/// The slice's image (GDCM decodes any compressed transfer syntax it supports).
-/// @throw InputError naming the file.
-void readImage(gdcm::ImageReader& reader, const std::string& file)
-{
-    reader.SetFileName(file.c_str());
-    if (!reader.Read()) throw InputError("'" + file + "' is not a readable DICOM image");
-}
-
-Slice readSlice(const std::string& file)
-{
-    gdcm::ImageReader reader;
-    readImage(reader, file);
-    const gdcm::Image& image = reader.GetImage();
-    Slice s;
-    s.file = file;
-    if (image.GetNumberOfDimensions() != 2 && !(image.GetNumberOfDimensions() == 3 && image.GetDimension(2) == 1))
-        throw InputError("'" + file + "' is a multi-frame image; isouq reads a series of single-frame slices");
-    if (image.GetPixelFormat().GetSamplesPerPixel() != 1)
-        throw InputError("'" + file + "' has " + std::to_string(image.GetPixelFormat().GetSamplesPerPixel())
-            + " samples per pixel; isouq reads grey (MONOCHROME) images");
-    const std::optional<SampleType> type = sampleTypeOf(image.GetPixelFormat());
-    if (!type) {
-        throw InputError("'" + file + "' has pixels of type " + image.GetPixelFormat().GetScalarTypeAsString()
-            + "; isouq reads 8, 12, 16 and 32-bit integers and 32 or 64-bit floats");
-    }
-    s.type = *type;
-    s.columns = image.GetDimension(0);
-    s.rows = image.GetDimension(1);
-    const double* origin = image.GetOrigin();
-    const double* cosines = image.GetDirectionCosines();
-    const double* spacing = image.GetSpacing();
-    s.position = Vec3(origin[0], origin[1], origin[2]);
-    s.rowCosines = Vec3(cosines[0], cosines[1], cosines[2]);
-    s.columnCosines = Vec3(cosines[3], cosines[4], cosines[5]);
-    s.columnSpacing = spacing[0]; // between columns (x), the second PixelSpacing value
-    s.rowSpacing = spacing[1];
-    return s;
-}
-
 // ---- GDCM in a child process (Quarantine.h) ------------------------------------------------
 // Debian's GDCM aborts on some damaged files (its assertions are on) and writes past its
 // buffers on others (JPEG 2000); the six fuzz_dicom findings of 3 December 2026. Every GDCM
-// call runs in a child process forked per series, which answers three requests.
+// call runs in a child process forked per series, through the module GdcmServer.h, loaded in
+// the parent before the first fork.
 
-enum Request : char { kScan = 'S', kHeader = 'H', kPixels = 'P' };
+/// The file this code was linked into (the executable, or the Python module), from the mapping
+/// that holds it: dladdr gives the executable as it was started (argv[0], maybe relative).
+fs::path linkedInto()
+{
+    const auto here = reinterpret_cast<std::uintptr_t>(&linkedInto);
+    std::ifstream maps("/proc/self/maps");
+    std::string line;
+    while (std::getline(maps, line)) {
+        unsigned long lo = 0, hi = 0;
+        int pathAt = 0;
+        // "lo-hi perms offset dev inode path"
+        if (std::sscanf(line.c_str(), "%lx-%lx %*s %*s %*s %*s %n", &lo, &hi, &pathAt) < 2 || here < lo || here >= hi)
+            continue;
+        std::string path = pathAt > 0 ? line.substr(std::size_t(pathAt)) : "";
+        const std::string gone = " (deleted)"; // the file was replaced since it was loaded
+        if (path.size() > gone.size() && path.compare(path.size() - gone.size(), gone.size(), gone) == 0)
+            path.resize(path.size() - gone.size());
+        return path;
+    }
+    return {};
+}
 
-Message& putVec(Message& m, const Vec3& v) { return m.put(v[0]).put(v[1]).put(v[2]); }
+/// The module's entry point, loaded once per process. Looked for beside the file this code is
+/// linked into (the Python package holds it), in the installed layout relative to it
+/// (bin/../lib/isouq, as in the build tree), then where `cmake --install` put it.
+GdcmServe gdcmServe()
+{
+    static std::mutex mutex;
+    static GdcmServe serve = nullptr;
+    const std::lock_guard<std::mutex> lock(mutex);
+    if (serve) return serve;
+    const fs::path dir = linkedInto().parent_path();
+    std::vector<fs::path> places{fs::path(ISOUQ_GDCM_MODULE_INSTALLED)};
+    if (!dir.empty()) places.insert(places.begin(), {dir, (dir / ISOUQ_GDCM_MODULE_FROM_BIN).lexically_normal()});
+    std::string looked;
+    for (const fs::path& place : places) {
+        const fs::path path = place / kGdcmModuleName;
+        std::error_code ec;
+        if (!fs::is_regular_file(path, ec)) {
+            looked += (looked.empty() ? "" : ", ") + place.string();
+            continue;
+        }
+        void* handle = ::dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+        if (!handle) throw InputError(std::string("cannot read DICOM: ") + ::dlerror());
+        serve = reinterpret_cast<GdcmServe>(::dlsym(handle, kGdcmServeSymbol));
+        if (!serve) throw InputError("cannot read DICOM: '" + path.string() + "' is from another version of isouq");
+        return serve;
+    }
+    throw InputError(std::string("cannot read DICOM: isouq's GDCM module ") + kGdcmModuleName + " is in none of "
+        + looked + " (reinstall isouq)");
+}
+
 Vec3 getVec(Message& m)
 {
     const double x = m.get<double>(), y = m.get<double>();
     return Vec3(x, y, m.get<double>());
 }
 
-/// In the child: one request's answer.
-Message serveGdcm(Message& request)
-{
-    Message reply;
-    switch (request.get<char>()) {
-    case kScan: { // -> per file: keyed by the scan (0/1), then its Series Instance UID
-        std::vector<std::string> files(request.get<std::uint64_t>());
-        for (std::string& file : files) file = request.getString();
-        const gdcm::Tag seriesTag(0x0020, 0x000e);
-        gdcm::Scanner scanner;
-        scanner.AddTag(seriesTag);
-        if (!scanner.Scan(files)) throw InputError("GDCM cannot scan the folder");
-        for (const std::string& file : files) {
-            const bool keyed = scanner.IsKey(file.c_str());
-            const char* uid = keyed ? scanner.GetValue(file.c_str(), seriesTag) : nullptr;
-            reply.put(char(keyed)).putString(uid ? uid : "");
-        }
-        return reply;
-    }
-    case kHeader: {
-        const Slice s = readSlice(request.getString());
-        reply.put(s.columns).put(s.rows).put(s.type).put(s.columnSpacing).put(s.rowSpacing);
-        putVec(putVec(putVec(reply, s.position), s.rowCosines), s.columnCosines);
-        return reply;
-    }
-    case kPixels: { // -> slope, intercept, the samples in host byte order
-        const std::string file = request.getString();
-        const auto bytes = request.get<std::uint64_t>();
-        gdcm::ImageReader reader;
-        readImage(reader, file);
-        const gdcm::Image& image = reader.GetImage();
-        std::vector<char> buffer(image.GetBufferLength());
-        if (buffer.size() < bytes || !image.GetBuffer(buffer.data()))
-            throw InputError("cannot read the pixels of '" + file + "' (truncated or unsupported encoding)");
-        reply.put(image.GetSlope()).put(image.GetIntercept());
-        return Message(reply.bytes() + std::string(buffer.data(), std::size_t(bytes)));
-    }
-    }
-    throw InputError("unknown request");
-}
-
 /// In the parent: GDCM's answers, from its child process.
 class Gdcm {
 public:
     explicit Gdcm(openvdb::util::NullInterrupter* interrupter)
-        : mChild("GDCM", serveGdcm), mInterrupter(interrupter) {}
+        : mChild("GDCM", [serve = gdcmServe()](Message& request) {
+              char* reply = nullptr;
+              std::size_t size = 0;
+              const int failed = serve(request.bytes().data(), request.bytes().size(), &reply, &size);
+              std::string bytes(reply ? reply : "", size);
+              std::free(reply);
+              if (failed) throw InputError(bytes);
+              return Message(std::move(bytes));
+          }),
+          mInterrupter(interrupter)
+    {
+    }
 
     /// The Series Instance UID of each file GDCM parsed (gdcm::Scanner's keys).
     std::vector<std::pair<std::string, std::string>> scan(const std::vector<std::string>& files, const std::string& folder)
@@ -473,9 +437,6 @@ LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrup
 {
     const std::string& path = request.input;
     rejectRawFlags(request, "a DICOM series", false);
-    gdcm::Trace::WarningOff();
-    gdcm::Trace::ErrorOff();
-    gdcm::Trace::DebugOff();
     // The folder's regular files (symlinks followed). Not gdcm::Directory: it stops listing at
     // the first entry that is neither a file nor a folder (a FIFO, a device), which would mesh
     // a shorter series, and a FIFO would block the reads below.

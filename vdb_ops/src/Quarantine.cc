@@ -71,14 +71,6 @@ std::string printed(int fd)
 
 } // namespace
 
-const char* Message::take(std::uint64_t n)
-{
-    if (n > left()) throw InputError("a message from a reader process ends early");
-    const char* at = mBytes.data() + mRead;
-    mRead += std::size_t(n);
-    return at;
-}
-
 Quarantine::Quarantine(std::string library, Serve serve) : mLibrary(std::move(library))
 {
     int sockets[2];

@@ -5,6 +5,8 @@
 // Blender.
 #pragma once
 
+#include "isouq/Errors.h"
+
 #include <openvdb/util/NullInterrupter.h>
 
 #include <sys/types.h>
@@ -55,7 +57,13 @@ public:
     const std::string& bytes() const { return mBytes; }
 
 private:
-    const char* take(std::uint64_t n);
+    const char* take(std::uint64_t n)
+    {
+        if (n > left()) throw InputError("a message from a reader process ends early");
+        const char* at = mBytes.data() + mRead;
+        mRead += std::size_t(n);
+        return at;
+    }
     std::string mBytes;
     std::size_t mRead = 0;
 };
