@@ -5,6 +5,9 @@
 #include <isouq/Progress.h>
 #include <isouq/VolumeSources.h>
 
+#include <tbb/task_arena.h>
+#include <tbb/task_group.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
@@ -354,6 +357,13 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
     std::vector<PendingWrite> writes;
     std::vector<std::map<std::string, NodeValue>> values(count);
     std::vector<double> cookMs(count, 0.0);
+    // In one process a write stages (into its temporary file) as soon as its node has cooked, on
+    // a thread that later cooks leave free: a PLY's bytes go to the kernel while the summary
+    // measures. Each into a batch of its own; the batches join the run's batch in the graph's
+    // order. Cooks run isolated, so their parallel loops never take up a write (one thread
+    // (-j 1): the writes stage after the last cook, as on ranks, where writing is collective).
+    std::vector<std::unique_ptr<OutputBatch>> staged;
+    tbb::task_group stagers;
 
     for (std::size_t n = 0; n < count; ++n) {
         const GraphNode& node = graph.nodes[n];
@@ -384,7 +394,7 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         } else {
             throwIfInterrupted(interrupter);
             try {
-                node.type->cook(ctx);
+                tbb::this_task_arena::isolate([&] { node.type->cook(ctx); });
             } catch (const InterruptedError&) {
                 throw;
             } catch (const std::exception& e) {
@@ -401,10 +411,19 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         if (std::find(keepMeshes.begin(), keepMeshes.end(), node.id) != keepMeshes.end() && values[n].count("mesh"))
             result.meshes[node.id] = values[n]["mesh"].mesh;
         for (std::size_t m : freeAfter[n]) values[m].clear();
+        for (std::size_t w = staged.size(); !ranks && w < writes.size(); ++w) {
+            OutputBatch* into = staged.emplace_back(std::make_unique<OutputBatch>()).get();
+            stagers.run([into, stage = writes[w].stage] { stage(*into); });
+        }
     }
     OutputBatch batch;
     collective([&] { throwIfInterrupted(interrupter); });
-    for (const PendingWrite& w : writes) collective([&] { w.stage(batch); });
+    if (ranks) {
+        for (const PendingWrite& w : writes) collective([&] { w.stage(batch); });
+    } else {
+        stagers.wait(); // rethrows a write's IoError
+        for (auto& one : staged) batch.add(std::move(*one));
+    }
     collective([&] {
         throwIfInterrupted(interrupter);
         batch.commit(); // on ranks, rank 0 holds the files

@@ -74,12 +74,13 @@ nlohmann::json meshGraph(const MeshGraphRequest& request)
             hiddenMesh = "color_hidden";
         }
     }
-    nlohmann::json summaryInputs = {{"mesh", standard}};
-    if (hidden) summaryInputs["hidden"] = hiddenMesh;
-    nodes.push_back(node(kMeshGraphSummary, "summary", {}, summaryInputs));
+    // The mesh writers before the summary: their files fill while it measures (Graph.h runGraph).
     if (!request.output.empty()) nodes.push_back(writer("write", request.output, request.write, standard));
     if (!request.hiddenOutput.empty())
         nodes.push_back(writer("write_hidden", request.hiddenOutput, request.write, hiddenMesh));
+    nlohmann::json summaryInputs = {{"mesh", standard}};
+    if (hidden) summaryInputs["hidden"] = hiddenMesh;
+    nodes.push_back(node(kMeshGraphSummary, "summary", {}, summaryInputs));
     if (!request.summaryPath.empty())
         nodes.push_back(node("write_summary", "write_summary", {{"path", request.summaryPath}},
             {{"summary", kMeshGraphSummary}}));

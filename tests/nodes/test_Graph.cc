@@ -5,7 +5,12 @@
 #include <isouq/VolumeSources.h>
 #include <isouq/nodes/Graph.h>
 
+#include <tbb/global_control.h>
+
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
 
 using namespace isouq;
 using namespace isouq::nodes;
@@ -110,4 +115,43 @@ TEST_CASE("Graph: errors name the node and the parameter", "[nodes][graph]")
         CHECK(std::string(e.what()) ==
               "node 'read' (read_volume): parameter 'resolution': 1 is outside the hard range [2, 4096]");
     }
+}
+
+TEST_CASE("Graph: a write staged before a failing node leaves no file", "[nodes][graph][atomic]")
+{
+    // runGraph stages a write while later nodes cook (Graph.h); a later failure must remove its
+    // temporary file, whether the write finished, is under way (2 threads) or never ran (1).
+    const std::filesystem::path dir = std::filesystem::temp_directory_path() / "isouq_graph_staged";
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    const std::string ply = (dir / "sphere.ply").string();
+    const nlohmann::json doc = {{"nodes",
+        {{{"id", "read"}, {"type", "read_volume"}, {"parms", {{"input", "field:sphere"}, {"resolution", 160}}}},
+            {{"id", "mesh"}, {"type", "mesh"}, {"parms", {{"linear_only", true}}}, {"inputs", {{"volume", "read"}}}},
+            {{"id", "save"}, {"type", "write_ply"}, {"parms", {{"path", ply}}}, {"inputs", {{"mesh", "mesh"}}}},
+            {{"id", "cmp"}, {"type", "compare"}, {"inputs", {{"mesh", "mesh"}}}}}}};
+    const Graph graph = parseGraph(doc);
+    for (const int threads : {1, 2}) {
+        tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+        INFO(threads << " threads");
+        try {
+            runGraph(graph);
+            FAIL("compared a method a linear-only mesh does not have");
+        } catch (const InputError& e) {
+            CHECK(std::string(e.what()).find("node 'cmp' (compare)") != std::string::npos);
+        }
+        CHECK(std::filesystem::is_empty(dir));
+    }
+    // Without the failing node the file is written, the same with 1 and 2 threads.
+    const nlohmann::json fine = {{"nodes", {doc["nodes"][0], doc["nodes"][1], doc["nodes"][2]}}};
+    std::string bytes[2];
+    for (const int threads : {1, 2}) {
+        tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+        CHECK(runGraph(parseGraph(fine)).written == std::vector<std::string>{ply});
+        std::ifstream in(ply, std::ios::binary);
+        bytes[threads - 1].assign(std::istreambuf_iterator<char>(in), {});
+    }
+    CHECK(bytes[0].size() > 100000);
+    CHECK(bytes[0] == bytes[1]);
+    std::filesystem::remove_all(dir);
 }

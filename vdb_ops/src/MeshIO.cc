@@ -783,6 +783,12 @@ void OutputBatch::addText(const std::string& path, const std::string& text)
 
 void OutputBatch::addShared(std::unique_ptr<SharedPlyFile> file) { mImpl->files.push_back(std::move(file->mFile)); }
 
+void OutputBatch::add(OutputBatch&& other)
+{
+    for (auto& file : other.mImpl->files) mImpl->files.push_back(std::move(file));
+    other.mImpl->files.clear();
+}
+
 void OutputBatch::commit()
 {
     for (auto& file : mImpl->files) file->commit();

@@ -94,6 +94,8 @@ public:
     void addText(const std::string& path, const std::string& text);
     /// A file that several processes wrote (SharedPlyFile): renamed with the others.
     void addShared(std::unique_ptr<SharedPlyFile> file);
+    /// Moves the files @a other staged (on another thread, say) into this batch, after its own.
+    void add(OutputBatch&& other);
     /// @throw IoError naming the first path that could not be renamed.
     void commit();
 

@@ -62,8 +62,10 @@ struct GraphResult {
     std::map<std::string, std::shared_ptr<const MeshData>> meshes;
 };
 
-/// Cooks every node in order, then commits the pending writes. Interruption or a failing
-/// node leaves nothing written (and existing files untouched). With @a ranks (collective; MPI,
+/// Cooks every node in order, then commits the pending writes. In one process a write fills
+/// its temporary file on another thread while later nodes cook (a mesh writer before the
+/// summary: the PLY is written while the summary measures). Interruption or a failing node
+/// leaves nothing written (and existing files untouched). With @a ranks (collective; MPI,
 /// docs/mpi.md) every rank runs the graph on its piece, each cook and each write ends with an
 /// agreement, and a failure anywhere throws on every rank the message of the lowest failing
 /// one; a node type that does not cook on ranks (NodeType::onRanks) is refused.
