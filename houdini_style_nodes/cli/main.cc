@@ -67,8 +67,8 @@ const char* const kRunFooter = R"(
 A graph is JSON: {"nodes": [{"id": "read", "type": "read_volume", "parms": {...}},
   {"id": "mesh", "type": "mesh", "inputs": {"volume": "read"}}, ...]}. 'isouq nodes' lists the
 node types and their parameters; examples/ has one graph per paper figure; see docs/nodes.md.
-${NAME} in a string parameter is the environment variable NAME. Every node cooks before any
-file is written: a failed or interrupted run writes nothing.
+${NAME} in a string parameter is the environment variable NAME. Files appear only once every
+node has cooked: a failed or interrupted run writes nothing.
 )";
 
 bool stderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
