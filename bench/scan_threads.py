@@ -1,0 +1,62 @@
+#!/usr/bin/env python3
+"""Thread scaling of a whole `isouq mesh` run on a scan (issue 15; bench/README.md): each
+binary at -j 0 (every core) and -j 1, interleaved round by round, `--linear-only`, with the
+summary's stage times, and what is left outside them: start-up (twice with the huge-page
+restart), writing the files not overlapped with the summary, the renames and the exit.
+
+  bench/scan_threads.py SCAN ROUNDS BIN [BIN ...]
+  e.g. bench/scan_threads.py /tmp/isouq-scan/sphere_1024x1024x1024_uint8.raw 8 build/houdini_style_nodes/isouq
+
+Prints per run: wall s, peak MB, load/mesh/measure ms, rest s; then per binary the medians,
+the ratio -j 1 / -j 0 of each round and of the medians and of the best runs, and the load
+average before and after. Writes its files in a temporary folder beside nothing else.
+"""
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+
+def run(binary, scan, threads, folder):
+    out, summary, times = (os.path.join(folder, n) for n in ("o.ply", "o.json", "time.txt"))
+    cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, "--linear-only", "-j", str(threads),
+           "-q", "-o", out, "--summary", summary]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    wall, peak_kb = open(times).read().split()
+    stages = json.load(open(summary))["timings_ms"]
+    return {"wall": float(wall), "peak_mb": int(peak_kb) // 1024, **{k: stages[k] for k in ("load", "mesh", "measure")},
+            "rest": float(wall) - sum(stages.values()) / 1000.0}
+
+
+def main():
+    if len(sys.argv) < 4:
+        sys.exit(__doc__)
+    scan, rounds, binaries = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+    print("load average before:", " ".join(open("/proc/loadavg").read().split()[:3]))
+    runs = {(b, j): [] for b in binaries for j in (0, 1)}
+    with tempfile.TemporaryDirectory() as folder:
+        for r in range(rounds):
+            for j in (0, 1):
+                for b in binaries:
+                    x = run(b, scan, j, folder)
+                    runs[(b, j)].append(x)
+                    print(f"round {r + 1} -j {j} {b}: {x['wall']:.2f} s, {x['peak_mb']} MB, load {x['load']:.0f}, "
+                          f"mesh {x['mesh']:.0f}, measure {x['measure']:.0f} ms, rest {x['rest']:.2f} s", flush=True)
+    print("load average after:", " ".join(open("/proc/loadavg").read().split()[:3]))
+    for b in binaries:
+        med = {j: {k: statistics.median(x[k] for x in runs[(b, j)]) for k in runs[(b, j)][0]} for j in (0, 1)}
+        for j in (0, 1):
+            m = med[j]
+            print(f"{b} -j {j} medians: {m['wall']:.2f} s, peak {m['peak_mb']:.0f} MB, load {m['load']:.0f}, "
+                  f"mesh {m['mesh']:.0f}, measure {m['measure']:.0f} ms, rest {m['rest']:.2f} s")
+        rounds_ratio = [a["wall"] / b0["wall"] for a, b0 in zip(runs[(b, 1)], runs[(b, 0)])]
+        best = min(x["wall"] for x in runs[(b, 1)]) / min(x["wall"] for x in runs[(b, 0)])
+        print(f"{b} -j 1 / -j 0: rounds " + " ".join(f"{x:.2f}" for x in rounds_ratio)
+              + f"; medians {med[1]['wall'] / med[0]['wall']:.2f}x; best runs {best:.2f}x; stages (medians): "
+              + ", ".join(f"{k} {med[1][k] / med[0][k]:.2f}x" for k in ("load", "mesh", "measure")))
+
+
+if __name__ == "__main__":
+    main()
