@@ -357,11 +357,11 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
     std::vector<PendingWrite> writes;
     std::vector<std::map<std::string, NodeValue>> values(count);
     std::vector<double> cookMs(count, 0.0);
-    // In one process a write stages (into its temporary file) as soon as its node has cooked, on
+    // In one process a write stages (fills its temporary file) as soon as its node has cooked, on
     // a thread that later cooks leave free: a PLY's bytes go to the kernel while the summary
-    // measures. Each into a batch of its own; the batches join the run's batch in the graph's
-    // order. Cooks run isolated, so their parallel loops never take up a write (one thread
-    // (-j 1): the writes stage after the last cook, as on ranks, where writing is collective).
+    // measures. Each stages into a batch of its own; the batches join the run's batch in the
+    // graph's order. Cooks run isolated, so their parallel loops never take up a write; with one
+    // thread (-j 1) the writes stage after the last cook, as on ranks (collective writes).
     std::vector<std::unique_ptr<OutputBatch>> staged;
     tbb::task_group stagers;
 
