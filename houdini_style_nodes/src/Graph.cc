@@ -357,11 +357,12 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
     std::vector<PendingWrite> writes;
     std::vector<std::map<std::string, NodeValue>> values(count);
     std::vector<double> cookMs(count, 0.0);
-    // In one process a write stages (fills its temporary file) as soon as its node has cooked, on
-    // a thread that later cooks leave free: a PLY's bytes go to the kernel while the summary
-    // measures. Each stages into a batch of its own; the batches join the run's batch in the
-    // graph's order. Cooks run isolated, so their parallel loops never take up a write; with one
-    // thread (-j 1) the writes stage after the last cook, as on ranks (collective writes).
+    // In one process an early write (PendingWrite::early) stages, filling its temporary file,
+    // as soon as its node has cooked, on a thread that later cooks leave free: a PLY's bytes go
+    // to the kernel while the summary measures. The others (a report's pictures) stage after
+    // the last cook. Each stages into a batch of its own; the batches join the run's batch in
+    // the graph's order. Cooks run isolated, so their parallel loops never take up a write; with
+    // one thread (-j 1) every write stages after the last cook, as on ranks (collective writes).
     std::vector<std::unique_ptr<OutputBatch>> staged;
     tbb::task_group stagers;
 
@@ -413,7 +414,7 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         for (std::size_t m : freeAfter[n]) values[m].clear();
         for (std::size_t w = staged.size(); !ranks && w < writes.size(); ++w) {
             OutputBatch* into = staged.emplace_back(std::make_unique<OutputBatch>()).get();
-            stagers.run([into, stage = writes[w].stage] { stage(*into); });
+            if (writes[w].early) stagers.run([into, stage = writes[w].stage] { stage(*into); });
         }
     }
     OutputBatch batch;
@@ -422,7 +423,10 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         for (const PendingWrite& w : writes) collective([&] { w.stage(batch); });
     } else {
         stagers.wait(); // rethrows a write's IoError
-        for (auto& one : staged) batch.add(std::move(*one));
+        for (std::size_t w = 0; w < writes.size(); ++w) {
+            if (!writes[w].early) writes[w].stage(*staged[w]);
+            batch.add(std::move(*staged[w]));
+        }
     }
     collective([&] {
         throwIfInterrupted(interrupter);

@@ -54,7 +54,7 @@ void cookWritePly(CookContext& ctx)
         }});
         return;
     }
-    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addPly(mesh->mesh, path, options); }});
+    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addPly(mesh->mesh, path, options); }, true});
 }
 
 void cookWriteVtp(CookContext& ctx)
@@ -64,7 +64,7 @@ void cookWriteVtp(CookContext& ctx)
     if (!hasExtension(path, ".vtp"))
         throw std::invalid_argument("parameter 'path': " + path + " does not end in .vtp (VTK XML PolyData)");
     const MeshFileOptions options = plyOptionsOf(*mesh);
-    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addVtp(mesh->mesh, path, options); }});
+    ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addVtp(mesh->mesh, path, options); }, true});
 }
 
 void cookWriteSummary(CookContext& ctx)
@@ -74,7 +74,7 @@ void cookWriteSummary(CookContext& ctx)
     const bool writes = !ctx.ranks || ctx.ranks->rank() == 0; // on ranks rank 0 holds the summary
     ctx.writes->push_back({path, [text, path, writes](OutputBatch& batch) {
         if (writes) batch.addText(path, text);
-    }});
+    }, true});
 }
 
 std::string envOr(const char* name, const std::string& fallback)

@@ -55,6 +55,9 @@ struct PendingWrite {
     /// Writes the output to its temporary file in the batch (MeshIO.h OutputBatch); the graph
     /// commits the batch, so a run's outputs appear together or not at all. Throws IoError.
     std::function<void(OutputBatch&)> stage;
+    /// stage only fills the batch's temporary files, so it may run on another thread while
+    /// later nodes cook (Graph.h runGraph); otherwise it runs after the last cook.
+    bool early = false;
 };
 
 /// What a cook sees. Inputs of optional ports that are not connected are absent.
