@@ -23,9 +23,9 @@ for png in $(find . -name '*.png'); do echo "report picture: $png"; done
 test -n "$(find . -name '*.png')" || { echo "FAIL: the report wrote no picture"; exit 1; }
 if /usr/bin/python3 -c 'import pydicom' 2>/dev/null; then
   tests=$(cd "$(dirname "$0")/../python" && pwd)
-  /usr/bin/python3 -c "import sys; sys.path.insert(0, '$tests'); from pathlib import Path
-from test_formats_in import write_series; write_series(Path('series'))"
-  "$work/moved/bin/isouq" mesh series --isovalue 60 -o series.ply --quiet
+  isovalue=$(/usr/bin/python3 -c "import sys; sys.path.insert(0, '$tests'); from pathlib import Path
+from test_formats_in import ISOVALUE, write_series; write_series(Path('series')); print(ISOVALUE)")
+  "$work/moved/bin/isouq" mesh series --isovalue "$isovalue" -o series.ply --quiet
   test -s series.ply || { echo "FAIL: no mesh of the DICOM series"; exit 1; }
   echo "DICOM series: meshed with $work/moved/lib/isouq/libisouq_gdcm.so"
 fi

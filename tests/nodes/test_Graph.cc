@@ -1,4 +1,6 @@
 // Tests of the node layer (Graph.h, Node.h): cooks against analytic truths, graph checks.
+#include "../cli/CliHarness.h" // TempDir
+
 #include <catch2/catch.hpp>
 
 #include <isouq/MarchingCubes.h>
@@ -121,9 +123,8 @@ TEST_CASE("Graph: a write staged before a failing node leaves no file", "[nodes]
 {
     // runGraph stages a write while later nodes cook (Graph.h); a later failure must remove its
     // temporary file, whether the write finished, is under way (2 threads) or never ran (1).
-    const std::filesystem::path dir = std::filesystem::temp_directory_path() / "isouq_graph_staged";
-    std::filesystem::remove_all(dir);
-    std::filesystem::create_directories(dir);
+    const isouq_test::TempDir tmp;
+    const std::filesystem::path& dir = tmp.path;
     const std::string ply = (dir / "sphere.ply").string();
     const nlohmann::json doc = {{"nodes",
         {{{"id", "read"}, {"type", "read_volume"}, {"parms", {{"input", "field:sphere"}, {"resolution", 160}}}},
@@ -153,5 +154,4 @@ TEST_CASE("Graph: a write staged before a failing node leaves no file", "[nodes]
     }
     CHECK(bytes[0].size() > 100000);
     CHECK(bytes[0] == bytes[1]);
-    std::filesystem::remove_all(dir);
 }
