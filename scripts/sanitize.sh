@@ -67,9 +67,11 @@ thread)
   nm -D "$tbb/lib/libtbb.so.12" | grep __tsan_func_entry >/dev/null ||
     { echo "isouq: sanitize: $tbb/lib/libtbb.so.12 is not built with TSan" >&2; exit 1; }
   cmake -S . -B "$build" "${common[@]}" -DISOUQ_SANITIZE=thread \
-    "-DCMAKE_BUILD_RPATH=$tbb/lib" "-DCMAKE_EXE_LINKER_FLAGS=-Wl,--disable-new-dtags" >/dev/null
+    "-DCMAKE_BUILD_RPATH=$tbb/lib" "-DCMAKE_EXE_LINKER_FLAGS=-Wl,--disable-new-dtags" \
+    "-DCMAKE_MODULE_LINKER_FLAGS=-Wl,--disable-new-dtags" >/dev/null
   cmake --build "$build" -j"$jobs" --target isouq test_BlockSet test_MarchingCubes test_MeshTopology test_MeshIO test_HiddenFeatures test_CliContract test_Graph
-  ldd "$build/houdini_style_nodes/isouq" | grep -F "$tbb/lib/libtbb.so.12" >/dev/null ||
+  # The command line module (houdini_style_nodes/cli/CliModule.h) is what links TBB.
+  ldd "$build/lib/isouq/libisouq_cli.so" | grep -F "$tbb/lib/libtbb.so.12" >/dev/null ||
     { echo "isouq: sanitize: the TSan isouq does not load $tbb/lib/libtbb.so.12" >&2; exit 1; }
   export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$root/scripts/sanitizers/tsan.supp"
   cd "$build"

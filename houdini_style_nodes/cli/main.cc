@@ -1,8 +1,9 @@
-// isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report.
+// isouq: the command line (SPEC §8). A thin face over isouq::nodes: parse, run, report. It is
+// the module libisouq_cli.so, which the `isouq` program runs (CliModule.h, Launcher.cc).
 // The options of `mesh` come from the parameter declarations of the read_volume, mesh,
 // write_ply, color_map and write_summary nodes (ParmOptions.h); `run` runs a JSON node graph.
 // Exit status: 0 success, 2 bad input or usage (one line "isouq: error: ..."), 130 interrupted.
-#include "HugePages.h"
+#include "CliModule.h"
 #include "ParmOptions.h"
 #include "ProgressInterrupter.h"
 #include "ValidateCommand.h"
@@ -223,9 +224,8 @@ int listNodes(bool json, bool markdown)
 
 } // namespace
 
-int main(int argc, char** argv)
+int isouq_cli_main(int argc, char** argv)
 {
-    isouq::cli::useHugePagesForLargeInputs(argc, argv); // may re-execute this program, once
     // Past a file size limit (`ulimit -f`) a write fails with EFBIG and is reported and cleaned
     // up as a full disk is, instead of SIGXFSZ ending the process with its temporary file left.
     std::signal(SIGXFSZ, SIG_IGN);

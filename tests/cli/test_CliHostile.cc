@@ -654,12 +654,38 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
     SECTION("an isouq without its GDCM module (GdcmServer.h) says so")
     {
         if (fs::exists(fs::path(ISOUQ_GDCM_MODULE_INSTALLED) / "libisouq_gdcm.so")) return; // installed: found there
+        // The program and its command line, in the installed layout, without the GDCM module.
+        const fs::path modules = (dir / "bin" / ISOUQ_MODULE_FROM_BIN).lexically_normal();
         fs::create_directories(dir / "bin");
+        fs::create_directories(modules);
         fs::copy_file(ISOUQ_CLI, dir / "bin" / "isouq");
+        fs::copy_file(ISOUQ_CLI_MODULE_PATH, modules / fs::path(ISOUQ_CLI_MODULE_PATH).filename());
         const CliResult r = runCli("-c " + quote("exec timeout 60 bin/isouq mesh series -k 30 -q -o out.ply"), dir, "bash");
-        requireRefused(r, "isouq's GDCM module libisouq_gdcm.so is in none of " + (dir / "bin").string(), {out});
+        requireRefused(r, "isouq's GDCM module libisouq_gdcm.so is in none of " + modules.string(), {out});
     }
     requireNoTemporaries(dir);
+}
+
+TEST_CASE("CLI hostile: an isouq without its command-line module says so", "[cli][hostile]")
+{
+    // CliModule.h: `isouq` loads libisouq_cli.so from bin/../lib/isouq, then from the install.
+    if (fs::exists(fs::path(ISOUQ_MODULE_INSTALLED) / fs::path(ISOUQ_CLI_MODULE_PATH).filename())) return;
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    fs::create_directories(dir / "bin");
+    fs::copy_file(ISOUQ_CLI, dir / "bin" / "isouq");
+    for (const std::string& args : {"--version", "mesh field:sphere -q -o out.ply"}) {
+        INFO(args);
+        const CliResult r = runCli("-c " + quote("exec timeout 60 bin/isouq " + args), dir, "bash");
+        requireRefused(r, "libisouq_cli.so is in none of " + (dir / "bin" / ISOUQ_MODULE_FROM_BIN).string(),
+            {dir / "out.ply"});
+    }
+    // A module that is not one: the loader's own words, still one line and exit 2.
+    const fs::path modules = (dir / "bin" / ISOUQ_MODULE_FROM_BIN).lexically_normal();
+    fs::create_directories(modules);
+    writeFile(modules / fs::path(ISOUQ_CLI_MODULE_PATH).filename(), "not a shared object\n");
+    requireRefused(runCli("-c " + quote("exec timeout 60 bin/isouq --version"), dir, "bash"),
+        "cannot start isouq's command line", {});
 }
 
 TEST_CASE("CLI hostile: sequence patterns and --frames", "[cli][hostile][sequence]")
