@@ -2,6 +2,8 @@
 // real binary in a temporary folder and read what it left there.
 #pragma once
 
+#include "../TempDir.h"
+
 #include <catch2/catch.hpp>
 
 #include <sys/wait.h>
@@ -51,17 +53,6 @@ inline void writeFile(const fs::path& p, const std::string& bytes)
 {
     std::ofstream(p, std::ios::binary) << bytes;
 }
-
-struct TempDir {
-    fs::path path;
-    TempDir()
-    {
-        path = fs::temp_directory_path() / ("isouq-cli-" + std::to_string(::getpid()) + "-" +
-                                            std::to_string(std::rand()));
-        fs::create_directories(path);
-    }
-    ~TempDir() { fs::remove_all(path); }
-};
 
 /// Runs `isouq mesh INPUT_ARGS -o OUT` twice: with no output present (none may appear) and with
 /// an existing output (it must stay byte-identical). Each run: exit 2, one "isouq: error:" line.

@@ -1,5 +1,5 @@
 // Tests of the node layer (Graph.h, Node.h): cooks against analytic truths, graph checks.
-#include "../cli/CliHarness.h" // TempDir
+#include "../TempDir.h"
 
 #include <catch2/catch.hpp>
 

@@ -3,6 +3,8 @@
 // under real failures, and malformed input.
 #include <isouq/MeshIO.h>
 
+#include "../TempDir.h"
+
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 
@@ -21,29 +23,11 @@
 #include <thread>
 
 namespace fs = std::filesystem;
+using isouq_test::TempDir;
 using isouq::IoError;
 using isouq::Mesh;
 
 namespace {
-
-struct TempDir {
-    fs::path path;
-    TempDir()
-    {
-        char name[] = "/tmp/isouq-meshio-XXXXXX";
-        REQUIRE(::mkdtemp(name) != nullptr);
-        path = name;
-    }
-    ~TempDir() { fs::remove_all(path); }
-    std::string operator/(const std::string& name) const { return (path / name).string(); }
-    std::vector<std::string> list() const
-    {
-        std::vector<std::string> names;
-        for (const auto& e : fs::directory_iterator(path)) names.push_back(e.path().filename().string());
-        std::sort(names.begin(), names.end());
-        return names;
-    }
-};
 
 std::string readBytes(const std::string& path)
 {

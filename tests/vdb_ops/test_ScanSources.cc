@@ -6,6 +6,8 @@
 #include <isouq/GridMetadata.h>
 #include <isouq/VolumeSources.h>
 
+#include "../TempDir.h"
+
 #include <catch2/catch.hpp>
 
 #include <unistd.h>
@@ -17,21 +19,10 @@
 #include <fstream>
 
 namespace fs = std::filesystem;
+using isouq_test::TempDir;
 using Catch::Matchers::Contains;
 
 namespace {
-
-struct TempDir {
-    fs::path path;
-    TempDir()
-    {
-        static int sCount = 0;
-        path = fs::temp_directory_path() / ("isouq_scans_" + std::to_string(::getpid()) + "_" + std::to_string(sCount++));
-        fs::create_directories(path);
-    }
-    ~TempDir() { fs::remove_all(path); }
-    std::string operator/(const std::string& name) const { return (path / name).string(); }
-};
 
 constexpr int kNx = 19, kNy = 13, kNz = 11;
 

@@ -5,6 +5,8 @@
 #include <isouq/MarchingCubes.h>
 #include <isouq/VolumeSources.h>
 
+#include "../TempDir.h"
+
 #include <catch2/catch.hpp>
 #include <openvdb/io/File.h>
 #include <openvdb/tools/LevelSetSphere.h>
@@ -24,6 +26,7 @@
 #include <iterator>
 
 namespace fs = std::filesystem;
+using isouq_test::TempDir;
 using Catch::Matchers::Contains;
 using Catch::Matchers::WithinAbs;
 using isouq::KeepBlocks;
@@ -31,19 +34,6 @@ using isouq::VolumeRequest;
 using openvdb::Coord;
 
 namespace {
-
-struct TempDir {
-    fs::path path;
-    TempDir()
-    {
-        static int sCount = 0;
-        path = fs::temp_directory_path()
-            / ("isouq_sources_" + std::to_string(::getpid()) + "_" + std::to_string(sCount++));
-        fs::create_directories(path);
-    }
-    ~TempDir() { fs::remove_all(path); }
-    std::string operator/(const std::string& name) const { return (path / name).string(); }
-};
 
 std::string dataPath(const std::string& name) { return std::string(ISOUQ_DATA_DIR) + "/" + name; }
 
