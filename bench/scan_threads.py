@@ -10,6 +10,12 @@ restart), writing the files not overlapped with the summary, the renames and the
 Prints per run: wall s, peak MB, load/mesh/measure ms, rest s; then per binary the medians,
 the ratio -j 1 / -j 0 of each round and of the medians and of the best runs, and the load
 average before and after. Writes its files in a temporary folder beside nothing else.
+
+Every run writes a new file: the last run's outputs are removed and `sync` runs before each
+timed run, so that no writeback of an earlier run's 175 MB PLY takes a core from it (ext4
+writes a file back when a rename replaces it, and the flusher writes the rest), and the order
+of the binaries alternates from round to round: without both, the run that followed a short
+run lost 50-200 ms to the previous run's writeback, and a second binary always ran there.
 """
 import json
 import os
@@ -21,6 +27,10 @@ import tempfile
 
 def run(binary, scan, threads, folder):
     out, summary, times = (os.path.join(folder, n) for n in ("o.ply", "o.json", "time.txt"))
+    for f in (out, summary):
+        if os.path.exists(f):
+            os.remove(f)
+    os.sync()
     cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, "--linear-only", "-j", str(threads),
            "-q", "-o", out, "--summary", summary]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -39,7 +49,7 @@ def main():
     with tempfile.TemporaryDirectory() as folder:
         for r in range(rounds):
             for j in (0, 1):
-                for b in binaries:
+                for b in (binaries if r % 2 == 0 else binaries[::-1]):
                     x = run(b, scan, j, folder)
                     runs[(b, j)].append(x)
                     print(f"round {r + 1} -j {j} {b}: {x['wall']:.2f} s, {x['peak_mb']} MB, load {x['load']:.0f}, "
