@@ -1,10 +1,13 @@
 // isouq: the program users run. It settles its memory pages first (HugePages.h: a large input
-// restarts it once with glibc's tunables), while only libc is loaded, then loads the command
-// line module (CliModule.h) and runs it: the restart costs about 1 ms, not a second start of
-// OpenVDB (about 70 ms). The module is looked for as installed relative to this program
-// (bin/../lib/isouq; the build tree has the same layout), then where `cmake --install` put it.
+// restarts it once with glibc's tunables) while only libc and libstdc++ are loaded, then loads
+// the command line module (CliModule.h) and runs it: the restart costs about 1 ms, not a second
+// start of OpenVDB (about 70 ms). The module is looked for as installed relative to this
+// program (bin/../lib/isouq; the build tree has the same layout), then where `cmake --install`
+// put it.
 #include "CliModule.h"
 #include "HugePages.h"
+
+#include <isouq/Errors.h> // oneLine: header-only
 
 #include <dlfcn.h>
 #include <unistd.h>
@@ -18,10 +21,10 @@ int main(int argc, char** argv)
     isouq::cli::useHugePagesForLargeInputs(argc, argv); // may re-execute this program, once
     char self[PATH_MAX];
     const ssize_t length = ::readlink("/proc/self/exe", self, sizeof self - 1);
-    std::string dir = length > 0 ? std::string(self, std::size_t(length)) : std::string();
-    dir.resize(dir.find_last_of('/') == std::string::npos ? 0 : dir.find_last_of('/'));
+    const std::string exe = length > 0 ? std::string(self, std::size_t(length)) : std::string();
+    const std::size_t slash = exe.rfind('/');
     std::string looked, error;
-    for (const std::string& place : {dir.empty() ? std::string() : dir + "/" ISOUQ_CLI_MODULE_FROM_BIN,
+    for (const std::string& place : {slash == std::string::npos ? std::string() : exe.substr(0, slash) + "/" ISOUQ_CLI_MODULE_FROM_BIN,
                                      std::string(ISOUQ_CLI_MODULE_INSTALLED)}) {
         if (place.empty()) continue;
         const std::string path = place + "/" ISOUQ_CLI_MODULE;
@@ -32,10 +35,12 @@ int main(int argc, char** argv)
         const auto run = module ? reinterpret_cast<decltype(&isouq_cli_main)>(::dlsym(module, isouq::cli::kCliMainSymbol))
                                 : nullptr;
         if (run) return run(argc, argv);
-        error = ::dlerror();
+        const char* why = ::dlerror();
+        error = why ? why : path + " cannot be loaded";
         break;
     }
     if (error.empty()) error = std::string(ISOUQ_CLI_MODULE " is in none of ") + looked;
-    std::fprintf(stderr, "isouq: error: cannot start isouq's command line: %s (reinstall isouq)\n", error.c_str());
+    std::fprintf(stderr, "isouq: error: %s\n",
+        isouq::oneLine("cannot start isouq's command line: " + error + " (reinstall isouq)").c_str());
     return 2;
 }

@@ -672,15 +672,18 @@ TEST_CASE("CLI hostile: an isouq without its command-line module says so", "[cli
     if (fs::exists(fs::path(ISOUQ_MODULE_INSTALLED) / fs::path(ISOUQ_CLI_MODULE_PATH).filename())) return;
     TempDir tmp;
     const fs::path& dir = tmp.path;
-    fs::create_directories(dir / "bin");
-    fs::copy_file(ISOUQ_CLI, dir / "bin" / "isouq");
+    const fs::path prefix = dir / "pre\nfix"; // the message echoes the path: still one line
+    fs::create_directories(prefix / "bin");
+    fs::copy_file(ISOUQ_CLI, prefix / "bin" / "isouq");
     for (const std::string& args : {"--version", "mesh field:sphere -q -o out.ply"}) {
         INFO(args);
-        const CliResult r = runCli("-c " + quote("exec timeout 60 bin/isouq " + args), dir, "bash");
-        requireRefused(r, "libisouq_cli.so is in none of " + (dir / "bin" / ISOUQ_MODULE_FROM_BIN).string(),
+        const CliResult r = runCli("-c " + quote("exec timeout 60 \"$(printf \"pre\\nfix\")/bin/isouq\" " + args), dir, "bash");
+        requireRefused(r, "libisouq_cli.so is in none of " + (dir / "pre\\nfix" / "bin" / ISOUQ_MODULE_FROM_BIN).string(),
             {dir / "out.ply"});
     }
     // A module that is not one: the loader's own words, still one line and exit 2.
+    fs::create_directories(dir / "bin");
+    fs::copy_file(ISOUQ_CLI, dir / "bin" / "isouq");
     const fs::path modules = (dir / "bin" / ISOUQ_MODULE_FROM_BIN).lexically_normal();
     fs::create_directories(modules);
     writeFile(modules / fs::path(ISOUQ_CLI_MODULE_PATH).filename(), "not a shared object\n");
