@@ -15,6 +15,7 @@
 #include <climits>
 #include <cstdio>
 #include <string>
+#include <vector>
 
 int main(int argc, char** argv)
 {
@@ -22,11 +23,11 @@ int main(int argc, char** argv)
     char self[PATH_MAX];
     const ssize_t length = ::readlink("/proc/self/exe", self, sizeof self - 1);
     const std::string exe = length > 0 ? std::string(self, std::size_t(length)) : std::string();
-    const std::size_t slash = exe.rfind('/');
+    std::vector<std::string> places{ISOUQ_MODULE_INSTALLED};
+    if (const std::size_t slash = exe.rfind('/'); slash != std::string::npos)
+        places.insert(places.begin(), exe.substr(0, slash) + "/" ISOUQ_MODULE_FROM_BIN);
     std::string looked, error;
-    for (const std::string& place : {slash == std::string::npos ? std::string() : exe.substr(0, slash) + "/" ISOUQ_CLI_MODULE_FROM_BIN,
-                                     std::string(ISOUQ_CLI_MODULE_INSTALLED)}) {
-        if (place.empty()) continue;
+    for (const std::string& place : places) {
         const std::string path = place + "/" ISOUQ_CLI_MODULE;
         looked += (looked.empty() ? "" : ", ") + place;
         if (::access(path.c_str(), F_OK) != 0) continue;

@@ -653,7 +653,7 @@ TEST_CASE("CLI hostile: DICOM folders", "[cli][hostile][dicom]")
     }
     SECTION("an isouq without its GDCM module (GdcmServer.h) says so")
     {
-        if (fs::exists(fs::path(ISOUQ_GDCM_MODULE_INSTALLED) / "libisouq_gdcm.so")) return; // installed: found there
+        if (fs::exists(fs::path(ISOUQ_MODULE_INSTALLED) / "libisouq_gdcm.so")) return; // installed: found there
         // The program and its command line, in the installed layout, without the GDCM module.
         const fs::path modules = (dir / "bin" / ISOUQ_MODULE_FROM_BIN).lexically_normal();
         fs::create_directories(dir / "bin");

@@ -314,8 +314,8 @@ GdcmServe gdcmServe()
     const std::lock_guard<std::mutex> lock(mutex);
     if (serve) return serve;
     const fs::path dir = linkedInto().parent_path();
-    std::vector<fs::path> places{fs::path(ISOUQ_GDCM_MODULE_INSTALLED)};
-    if (!dir.empty()) places.insert(places.begin(), {dir, (dir / ISOUQ_GDCM_MODULE_FROM_BIN).lexically_normal()});
+    std::vector<fs::path> places{fs::path(ISOUQ_MODULE_INSTALLED)};
+    if (!dir.empty()) places.insert(places.begin(), {dir, (dir / ISOUQ_MODULE_FROM_BIN).lexically_normal()});
     std::string looked;
     for (const fs::path& place : places) {
         const fs::path path = place / kGdcmModuleName;
