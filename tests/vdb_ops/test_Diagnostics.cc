@@ -100,3 +100,53 @@ TEST_CASE("Diagnostics: an isovalue outside the data range, or not finite", "[di
     checkOneLine(message);
     CHECK_THAT(message, Contains("isovalue nan is not finite"));
 }
+
+TEST_CASE("Diagnostics: the value scan equals a walk of OpenVDB's value iterators", "[diagnostics]")
+{
+    // Truth: every active value from cbeginValueOn in leaf order, then the active tiles. Leaves
+    // fully active (the scan's lanes) and partly active, whose inactive values lie far outside.
+    openvdb::initialize();
+    auto grid = openvdb::FloatGrid::create(0.5f);
+    std::uint32_t state = 12345;
+    auto next = [&] { return state = state * 1664525u + 1013904223u; };
+    for (int leaf = 0; leaf < 40; ++leaf) {
+        const Coord origin(8 * (leaf % 7), 8 * (leaf / 7), -16);
+        for (int i = 0; i < 512; ++i) {
+            const Coord ijk = origin + Coord(i >> 6, (i >> 3) & 7, i & 7);
+            const float value = float(int(next() % 20001) - 10000) / 997.0f;
+            if (leaf % 3 != 0 || next() % 4 == 0) grid->tree().setValue(ijk, value);
+            else grid->tree().setValueOff(ijk, 1.0e6f); // inactive values are not data
+        }
+    }
+    grid->tree().addTile(/*level=*/1, Coord(800, 0, 0), 42.0f, /*active=*/true);
+    auto truth = [](const openvdb::FloatGrid& g) {
+        isouq::ActiveValueScan scan;
+        std::uint64_t index = 0;
+        for (auto leaf = g.tree().cbeginLeaf(); leaf; ++leaf, ++index)
+            for (auto it = leaf->cbeginValueOn(); it; ++it) scan.add(*it, index, it.getCoord(), 1);
+        auto tile = g.tree().cbeginValueOn();
+        tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+        for (; tile; ++tile) scan.add(*tile, index, tile.getCoord(), tile.getVoxelCount());
+        return scan;
+    };
+    auto same = [](const isouq::ActiveValueScan& a, const isouq::ActiveValueScan& b) {
+        CHECK(a.min == b.min);
+        CHECK(a.max == b.max);
+        CHECK(a.nonFinite == b.nonFinite);
+        CHECK(a.firstLeaf == b.firstLeaf);
+        CHECK(a.first == b.first);
+        CHECK((a.firstValue == b.firstValue || (std::isnan(a.firstValue) && std::isnan(b.firstValue))));
+    };
+    same(isouq::scanActiveValues(*grid), truth(*grid));
+    CHECK(isouq::scanActiveValues(*grid).max == 42.0f); // the tile
+
+    // Non-finite values in a fully active leaf and in a partly active one, each after finite ones.
+    grid->tree().setValue(Coord(8, 0, -16) + Coord(5, 6, 7), kNaN); // leaf 1: fully active
+    grid->tree().setValue(Coord(8, 0, -16) + Coord(7, 7, 7), -kInf);
+    grid->tree().setValue(Coord(0, 8, -16) + Coord(3, 3, 3), kInf); // leaf 7: partly active
+    const isouq::ActiveValueScan scan = isouq::scanActiveValues(*grid);
+    same(scan, truth(*grid));
+    CHECK(scan.nonFinite == 3);
+    CHECK(std::isfinite(scan.min));
+    CHECK(std::isfinite(scan.max));
+}

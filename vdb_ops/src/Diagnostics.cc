@@ -6,6 +6,7 @@
 #include <tbb/parallel_reduce.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -40,6 +41,45 @@ void ActiveValueScan::join(const ActiveValueScan& other)
     if (other.firstLeaf < firstLeaf) firstLeaf = other.firstLeaf, first = other.first, firstValue = other.firstValue;
 }
 
+namespace {
+
+/// Adds one leaf's active values to @a scan. A leaf whose values are all finite (nearly every
+/// leaf) takes one pass of min, max and x - x (NaN once x is not finite) over its values, in
+/// lanes across a fully active leaf so that the compiler vectorises it; only a leaf with a
+/// non-finite value is walked value by value, for the first one's voxel. (At N = 1024 the
+/// value iterator took 150 ms: bench/README.md "5 December 2026".)
+void scanLeaf(const openvdb::FloatTree::LeafNodeType& leaf, std::uint64_t leafIndex, ActiveValueScan& scan)
+{
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    const float* v = leaf.buffer().data();
+    const Leaf::NodeMaskType& mask = leaf.getValueMask();
+    float lo = scan.min, hi = scan.max, check = 0.0f;
+    if (mask.isOn()) {
+        constexpr openvdb::Index kLanes = 16;
+        std::array<float, kLanes> laneLo, laneHi, laneCheck{};
+        laneLo.fill(lo), laneHi.fill(hi);
+        for (openvdb::Index i = 0; i < Leaf::SIZE; i += kLanes)
+            for (openvdb::Index l = 0; l < kLanes; ++l) {
+                const float x = v[i + l];
+                laneLo[l] = std::min(laneLo[l], x), laneHi[l] = std::max(laneHi[l], x), laneCheck[l] += x - x;
+            }
+        for (openvdb::Index l = 0; l < kLanes; ++l)
+            lo = std::min(lo, laneLo[l]), hi = std::max(hi, laneHi[l]), check += laneCheck[l];
+    } else {
+        for (auto it = mask.beginOn(); it; ++it) {
+            const float x = v[it.pos()];
+            lo = std::min(lo, x), hi = std::max(hi, x), check += x - x;
+        }
+    }
+    if (check == 0.0f) {
+        scan.min = lo, scan.max = hi;
+        return;
+    }
+    for (auto it = mask.beginOn(); it; ++it) scan.add(v[it.pos()], leafIndex, leaf.offsetToGlobalCoord(it.pos()), 1);
+}
+
+} // namespace
+
 ActiveValueScan scanActiveValues(const openvdb::FloatGrid& grid,
     const std::function<bool(const openvdb::Coord&)>& leaves, bool tiles)
 {
@@ -47,10 +87,8 @@ ActiveValueScan scanActiveValues(const openvdb::FloatGrid& grid,
     openvdb::tree::LeafManager<const openvdb::FloatTree> manager(grid.tree());
     ActiveValueScan scan = tbb::parallel_reduce(manager.leafRange(), ActiveValueScan(),
         [&](const LeafRange& range, ActiveValueScan partial) {
-            for (auto leaf = range.begin(); leaf; ++leaf) {
-                if (leaves && !leaves(leaf->origin())) continue;
-                for (auto it = leaf->cbeginValueOn(); it; ++it) partial.add(*it, leaf.pos(), it.getCoord(), 1);
-            }
+            for (auto leaf = range.begin(); leaf; ++leaf)
+                if (!leaves || leaves(leaf->origin())) scanLeaf(*leaf, leaf.pos(), partial);
             return partial;
         },
         [](ActiveValueScan a, const ActiveValueScan& b) { a.join(b); return a; });

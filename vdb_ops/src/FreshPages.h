@@ -32,10 +32,21 @@ constexpr std::size_t kHugeArrayFrom = kHugePage / 2;           // 1 MiB: a Page
 /// @a x rounded up to a multiple of @a unit, a power of two.
 constexpr std::uintptr_t roundUp(std::uintptr_t x, std::uintptr_t unit) { return (x + unit - 1) & ~(unit - 1); }
 
+/// Whether malloc's heap comes in huge pages already: glibc's glibc.malloc.hugetlb tunable, read
+/// at process start (the CLI sets it for large inputs: docs/mesher.md "Memory pages").
+inline bool mallocHasHugePages()
+{
+    static const bool set = [] {
+        const char* t = std::getenv("GLIBC_TUNABLES");
+        return t && (std::strstr(t, "glibc.malloc.hugetlb=1") || std::strstr(t, "glibc.malloc.hugetlb=2"));
+    }();
+    return set;
+}
+
 /// Faults in the pages of [p, p + bytes), which must be this process's own writable memory; the
-/// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more (THP
-/// "madvise", Debian's default, or "always"). Pages another allocation shares are only faulted
-/// in, never written. A kernel without MADV_POPULATE_WRITE (before 5.14) faults on first write.
+/// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more and
+/// malloc does not advise its heap itself (THP "madvise", Debian's default, or "always"). Pages
+/// another allocation shares are only faulted in, never written. A kernel without MADV_POPULATE_WRITE (before 5.14) faults on first write.
 inline void populatePages(const void* p, std::size_t bytes, bool threaded)
 {
 #if defined(MADV_POPULATE_WRITE)
@@ -43,7 +54,10 @@ inline void populatePages(const void* p, std::size_t bytes, bool threaded)
     const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
     const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(p) & ~(page - 1);
     const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(p) + bytes, page);
-    if (bytes >= kHugeFrom) {
+    // Malloc's heap in huge pages is advised already; advising it again takes the address
+    // space's write lock, which waits for the other threads' faults in progress (8-15 ms a call
+    // on the 1 GiB raw scan, while a core idles: bench/README.md "5 December 2026").
+    if (bytes >= kHugeFrom && !mallocHasHugePages()) {
         const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
         if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
     }
@@ -78,17 +92,6 @@ constexpr bool kSanitized =
 #else
     false;
 #endif
-
-/// Whether malloc's heap comes in huge pages already: glibc's glibc.malloc.hugetlb tunable, read
-/// at process start (the CLI sets it for large inputs: docs/mesher.md "Memory pages").
-inline bool mallocHasHugePages()
-{
-    static const bool set = [] {
-        const char* t = std::getenv("GLIBC_TUNABLES");
-        return t && (std::strstr(t, "glibc.malloc.hugetlb=1") || std::strstr(t, "glibc.malloc.hugetlb=2"));
-    }();
-    return set;
-}
 
 /// The allocator of PageVector: a request of 1 MiB or more is mapped on its own in whole 2 MiB
 /// pages, advised MADV_HUGEPAGE, so that faulting it in costs a huge-page fault per 2 MiB rather
