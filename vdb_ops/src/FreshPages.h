@@ -43,39 +43,51 @@ inline bool mallocHasHugePages()
     return set;
 }
 
-/// Faults in the pages of [p, p + bytes), which must be this process's own writable memory; the
-/// whole 2 MiB pages inside it are first advised MADV_HUGEPAGE when it spans 8 MiB or more and
-/// malloc does not advise its heap itself (THP "madvise", Debian's default, or "always"). Pages
-/// another allocation shares are only faulted in, never written. A kernel without MADV_POPULATE_WRITE (before 5.14) faults on first write.
-inline void populatePages(const void* p, std::size_t bytes, bool threaded)
+/// A stretch of memory to fault in: [data, data + bytes).
+struct PageRange {
+    const void* data = nullptr;
+    std::size_t bytes = 0;
+};
+
+/// Faults in the pages of @a ranges, which must be this process's own writable memory. A range
+/// of 8 MiB or more first has its whole 2 MiB pages advised MADV_HUGEPAGE, unless malloc advises
+/// its heap itself (THP "madvise", Debian's default, or "always"). Pages another allocation
+/// shares are only faulted in, never written. A kernel without MADV_POPULATE_WRITE (before
+/// 5.14) faults on first write.
+inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
 {
 #if defined(MADV_POPULATE_WRITE)
-    if (bytes < kPopulateFrom) return;
     const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
-    const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(p) & ~(page - 1);
-    const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(p) + bytes, page);
-    // Malloc's heap in huge pages is advised already; advising it again takes the address
-    // space's write lock, which waits for the other threads' faults in progress (8-15 ms a call
-    // on the 1 GiB raw scan, while a core idles: bench/README.md "5 December 2026").
-    if (bytes >= kHugeFrom && !mallocHasHugePages()) {
-        const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
-        if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
+    // Pieces of at most 2 MiB on 2 MiB boundaries, of every range in one loop, so that the
+    // threads share the zeroing however the ranges' sizes differ.
+    std::vector<std::pair<std::uintptr_t, std::uintptr_t>> pieces;
+    for (const PageRange& range : ranges) {
+        if (range.bytes < kPopulateFrom) continue;
+        const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(range.data) & ~(page - 1);
+        const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(range.data) + range.bytes, page);
+        // Malloc's heap in huge pages is advised already; advising it again takes the address
+        // space's write lock, which waits for the other threads' faults in progress (8-15 ms a
+        // call on the 1 GiB raw scan, while a core idles: bench/README.md "5 December 2026").
+        if (range.bytes >= kHugeFrom && !mallocHasHugePages()) {
+            const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
+            if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
+        }
+        for (std::uintptr_t from = lo, to; from < hi; from = to) {
+            to = std::min(hi, (from / kHugePage + 1) * kHugePage);
+            pieces.emplace_back(from, to);
+        }
     }
-    // Pieces of 2 MiB (on 2 MiB boundaries), so that the threads share the zeroing. Isolated: a
-    // caller's task (one output column of several) waits for its own pieces only and does not
-    // take up a sibling task meanwhile, which ran the columns one after the other (at N = 1024,
-    // 15 ms instead of 8: bench/README.md "4 December 2026, 15:02").
-    const std::size_t pieces = (hi - 1) / kHugePage - lo / kHugePage + 1;
     auto populate = [&](std::size_t i) {
-        const std::uintptr_t from = std::max(lo, (lo / kHugePage + i) * kHugePage);
-        const std::uintptr_t to = std::min(hi, (lo / kHugePage + i + 1) * kHugePage);
-        ::madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
+        ::madvise(reinterpret_cast<void*>(pieces[i].first), pieces[i].second - pieces[i].first, MADV_POPULATE_WRITE);
     };
-    if (threaded && pieces > 1)
-        tbb::this_task_arena::isolate([&] { tbb::parallel_for(std::size_t(0), pieces, populate); });
-    else for (std::size_t i = 0; i < pieces; ++i) populate(i);
+    // Isolated: a caller's task (one output column of several) waits for its own pieces only and
+    // does not take up a sibling task meanwhile, which ran the columns one after the other (at
+    // N = 1024, 15 ms instead of 8: bench/README.md "4 December 2026, 15:02").
+    if (threaded && pieces.size() > 1)
+        tbb::this_task_arena::isolate([&] { tbb::parallel_for(std::size_t(0), pieces.size(), populate); });
+    else for (std::size_t i = 0; i < pieces.size(); ++i) populate(i);
 #else
-    (void)p, (void)bytes, (void)threaded;
+    (void)ranges, (void)threaded;
 #endif
 }
 
@@ -150,15 +162,23 @@ private:
 template <typename T>
 using PageVector = std::vector<T, HugePageAllocator<T>>;
 
+/// Gives @a v room for n elements. Storage it already has is kept (and an empty range
+/// returned); new storage, its contents dropped, is returned, not yet faulted in.
+template <typename T, typename A>
+PageRange reserveStorage(std::vector<T, A>& v, std::size_t n)
+{
+    if (n <= v.capacity()) return {};
+    std::vector<T, A>().swap(v);
+    v.reserve(n);
+    return {v.data(), n * sizeof(T)};
+}
+
 /// Gives @a v room for n elements: storage it already has is kept; new storage (its contents
 /// dropped) is faulted in first (populatePages).
 template <typename T, typename A>
 void reserveFresh(std::vector<T, A>& v, std::size_t n, bool threaded)
 {
-    if (n <= v.capacity()) return;
-    std::vector<T, A>().swap(v);
-    v.reserve(n);
-    populatePages(v.data(), n * sizeof(T), threaded);
+    populatePages({reserveStorage(v, n)}, threaded);
 }
 
 /// Gives @a v n elements to be overwritten (their values unspecified).

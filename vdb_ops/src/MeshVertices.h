@@ -68,8 +68,9 @@ struct VertexColumns {
 
     /// Sizes positions, triangles and the columns this pass writes, drops the columns it does
     /// not write (a reused mesh's leftovers), and points at them. The columns are sized side by
-    /// side, a task each (resize()'s zero fill is serial within one column). The pointers are to
-    /// the columns' storage, which moving a column (the table growing or shrinking) does not move.
+    /// side, a task each (resize()'s zero fill is serial within one column), once their pages are
+    /// in. The pointers are to the columns' storage, which moving a column (the table growing or
+    /// shrinking) does not move.
     static VertexColumns allocate(Mesh& mesh, std::size_t vertices, std::size_t triangles, bool provenance,
         const MeshSettings& settings, bool threaded)
     {
@@ -85,12 +86,19 @@ struct VertexColumns {
         a.retainOnly(std::vector<std::string>(names.begin(), names.end()));
         mesh.faceAttributes.clear();
 
-        auto size = [&](std::size_t i) { // 0 positions, 1 triangles, then the vertex columns
-            if (i == 0) resizeForFill(mesh.positions, vertices, threaded);
-            else if (i == 1) resizeForFill(mesh.triangles, triangles, threaded);
-            else std::visit([&](auto& v) { resizeForFill(v, vertices, threaded); }, a.columns()[i - 2].data);
+        auto each = [&](std::size_t i, auto&& f) { // 0 positions, 1 triangles, then the vertex columns
+            if (i == 0) return f(mesh.positions, vertices);
+            if (i == 1) return f(mesh.triangles, triangles);
+            return std::visit([&](auto& v) { return f(v, vertices); }, a.columns()[i - 2].data);
         };
         const std::size_t count = 2 + a.columns().size();
+        // Storage first, one column after the other (malloc's lock, and the address space's for
+        // new mappings), then every column's pages in one parallel loop (populatePages).
+        std::vector<PageRange> fresh;
+        for (std::size_t i = 0; i < count; ++i)
+            fresh.push_back(each(i, [](auto& v, std::size_t n) { return reserveStorage(v, n); }));
+        populatePages(fresh, threaded);
+        auto size = [&](std::size_t i) { each(i, [](auto& v, std::size_t n) { v.resize(n); }); };
         if (threaded) tbb::parallel_for(std::size_t(0), count, size);
         else for (std::size_t i = 0; i < count; ++i) size(i);
 
