@@ -1,4 +1,5 @@
-// isouq CLI: re-execution with glibc's malloc.hugetlb and arena_max tunables for large inputs
+// isouq CLI: re-execution with glibc's malloc tunables (huge pages, one arena, the heap's growth)
+// for large inputs
 // (HugePages.h).
 #include "HugePages.h"
 
@@ -56,8 +57,13 @@ void useHugePagesForLargeInputs(int argc, char** argv)
     // One malloc arena: glibc gives huge pages to the main arena's heap only; a worker thread's
     // own arena grows in 4 KiB steps and faulted in 17 000 more pages loading the 1 GiB scan
     // (docs/mesher.md "Memory pages"). Its lock is taken only by allocations above tcache's.
+    // The heap grows 16 MiB ahead, which the loaders fault in outside that lock
+    // (vdb_ops/src/FreshPages.h populateHeapTop). Setting top_pad fixes glibc's sliding mmap
+    // threshold at 128 KiB; 32 MiB, the sliding one's ceiling, keeps mid-size arrays in the heap.
     std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
     if (old.find("glibc.malloc.arena_max") == std::string::npos) value += ":glibc.malloc.arena_max=1";
+    if (old.find("glibc.malloc.top_pad") == std::string::npos) value += ":glibc.malloc.top_pad=16777216";
+    if (old.find("glibc.malloc.mmap_threshold") == std::string::npos) value += ":glibc.malloc.mmap_threshold=33554432";
     if (::setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
     ::execv("/proc/self/exe", argv);
     // The exec failed: go on in this process, with the environment as it was.

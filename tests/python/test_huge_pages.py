@@ -40,6 +40,10 @@ def volumes(tmp_path_factory):
     return folder, big, small
 
 
+# The heap's growth the restart adds (houdini_style_nodes/cli/HugePages.cc).
+HEAP = "glibc.malloc.top_pad=16777216:glibc.malloc.mmap_threshold=33554432"
+
+
 def run(cli, folder, source, name, **env_changes):
     """Runs `isouq mesh` under strace; returns (execve calls of the binary, PLY bytes)."""
     env = {k: v for k, v in os.environ.items() if k not in ("GLIBC_TUNABLES", "ISOUQ_HUGE_PAGES")}
@@ -61,7 +65,7 @@ def test_large_input_restarts_once_with_the_tunable(isouq_cli, volumes):
     execs, restarted = run(isouq_cli, folder, big, "default")
     assert len(execs) == expected, "the CLI should restart once for a 16 MiB input"
     if expected == 2:
-        assert '"GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.arena_max=1"' in execs[1], execs[1]
+        assert f'"GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.arena_max=1:{HEAP}"' in execs[1], execs[1]
     execs, plain = run(isouq_cli, folder, big, "off", ISOUQ_HUGE_PAGES="0")
     assert len(execs) == 1, "ISOUQ_HUGE_PAGES=0 should keep the first process"
     assert restarted == plain, "the restarted run wrote a different PLY"
@@ -70,7 +74,8 @@ def test_large_input_restarts_once_with_the_tunable(isouq_cli, volumes):
     assert preset == plain
     if expected == 2:  # another tunable the user set is kept, and an arena_max of theirs wins
         execs, kept = run(isouq_cli, folder, big, "other", GLIBC_TUNABLES="glibc.malloc.arena_max=4")
-        assert len(execs) == 2 and '"GLIBC_TUNABLES=glibc.malloc.arena_max=4:glibc.malloc.hugetlb=1"' in execs[1], execs
+        assert len(execs) == 2, execs
+        assert f'"GLIBC_TUNABLES=glibc.malloc.arena_max=4:glibc.malloc.hugetlb=1:{HEAP}"' in execs[1], execs
         assert kept == plain
     execs, _ = run(isouq_cli, folder, small, "small")
     assert len(execs) == 1, "a small input should not restart"

@@ -1,6 +1,6 @@
 // The mesher's block set (vdb_ops/src/BlockScratch.h, SPEC §9): the blocks around (or up to)
 // every leaf with an active voxel, marked in parallel, against a brute-force set of the same
-// blocks; and the huge-page storage of its per-block arrays (FreshPages.h).
+// blocks; and the huge-page storage of its per-block arrays and the heap (FreshPages.h).
 #include "BlockScratch.h"
 
 #include <openvdb/openvdb.h>
@@ -9,8 +9,17 @@
 
 #include <tbb/global_control.h>
 
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <cstdint>
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
 #include <random>
+#include <string>
+#include <vector>
 #include <set>
 #include <tuple>
 
@@ -100,4 +109,34 @@ TEST_CASE("BlockSet: a per-block array of 1 MiB or more lies in whole 2 MiB page
     big.push_back(8); // grows through the allocator's larger request
     REQUIRE(big.back() == 8);
     REQUIRE(big[0] == 7);
+}
+
+TEST_CASE("FreshPages: populateHeapTop faults in the heap's spare top", "[pages]")
+{
+    // The CLI's restart tunables (houdini_style_nodes/cli/HugePages.cc), which glibc reads only
+    // at process start: without them this case runs itself again in a child that has them.
+    constexpr std::size_t kPad = std::size_t(16) << 20;
+    if (isouq::mc_internal::kSanitized) return; // a sanitizer's own allocator has no brk heap
+    if (!isouq::mc_internal::mallocHasHugePages()) {
+        const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
+        const std::string command = "GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.arena_max=1:"
+                                    "glibc.malloc.top_pad=16777216:glibc.malloc.mmap_threshold=33554432 '"
+            + self + "' -w NoTests 'FreshPages: populateHeapTop faults in the heap*' > /dev/null";
+        REQUIRE(std::system(command.c_str()) == 0);
+        return;
+    }
+    // Leaf-sized blocks, as a scan's loader allocates: the heap grows by brk, 16 MiB ahead.
+    std::vector<std::unique_ptr<char[]>> blocks;
+    for (int i = 0; i < 20000; ++i) blocks.emplace_back(new char[2048]);
+    const auto end = reinterpret_cast<std::uintptr_t>(::sbrk(0));
+    const std::size_t page = std::size_t(::sysconf(_SC_PAGESIZE)), pages = kPad / page;
+    auto resident = [&] { // the kernel's word (mincore) on the last kPad bytes below the break
+        std::vector<unsigned char> in(pages);
+        REQUIRE(::mincore(reinterpret_cast<void*>(end - kPad), kPad, in.data()) == 0);
+        return std::size_t(std::count_if(in.begin(), in.end(), [](unsigned char c) { return c & 1; }));
+    };
+    const std::size_t before = resident();
+    isouq::mc_internal::populateHeapTop();
+    CHECK(before < pages / 2); // most of the spare top was never touched
+    CHECK(resident() == pages);
 }

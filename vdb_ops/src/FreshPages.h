@@ -18,7 +18,12 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <new>
+#include <sstream>
+#include <string>
+#include <string_view>
 #include <type_traits>
 #include <vector>
 
@@ -32,13 +37,30 @@ constexpr std::size_t kHugeArrayFrom = kHugePage / 2;           // 1 MiB: a Page
 /// @a x rounded up to a multiple of @a unit, a power of two.
 constexpr std::uintptr_t roundUp(std::uintptr_t x, std::uintptr_t unit) { return (x + unit - 1) & ~(unit - 1); }
 
+/// The value glibc reads at process start for tunable @a name ("glibc.malloc.hugetlb"), from
+/// GLIBC_TUNABLES; empty when it is not set.
+inline std::string mallocTunable(std::string_view name)
+{
+    const char* all = std::getenv("GLIBC_TUNABLES");
+    if (!all) return {};
+    const std::string_view t(all);
+    for (std::size_t at = 0; at <= t.size();) { // name=value pairs split by ':'
+        const std::size_t end = std::min(t.find(':', at), t.size());
+        const std::string_view pair = t.substr(at, end - at);
+        if (pair.size() > name.size() && pair.substr(0, name.size()) == name && pair[name.size()] == '=')
+            return std::string(pair.substr(name.size() + 1));
+        at = end + 1;
+    }
+    return {};
+}
+
 /// Whether malloc's heap comes in huge pages already: glibc's glibc.malloc.hugetlb tunable, read
 /// at process start (the CLI sets it for large inputs: docs/mesher.md "Memory pages").
 inline bool mallocHasHugePages()
 {
     static const bool set = [] {
-        const char* t = std::getenv("GLIBC_TUNABLES");
-        return t && (std::strstr(t, "glibc.malloc.hugetlb=1") || std::strstr(t, "glibc.malloc.hugetlb=2"));
+        const std::string v = mallocTunable("glibc.malloc.hugetlb");
+        return v == "1" || v == "2";
     }();
     return set;
 }
@@ -104,6 +126,32 @@ constexpr bool kSanitized =
 #else
     false;
 #endif
+
+/// With malloc's heap in huge pages and grown by brk with glibc.malloc.top_pad bytes to spare
+/// (the CLI's restart: docs/mesher.md "Memory pages"), faults in that spare top of the heap now,
+/// outside malloc's lock. Else the allocation that first reaches a fresh 2 MiB page zeroes it
+/// while holding the one arena's lock, and every other thread's allocation waits: loading the
+/// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/README.md "5 December 2026"). For loops that
+/// allocate many small blocks on every thread (a scan's leaves); at most top_pad bytes more are
+/// resident, which the next allocations use.
+inline void populateHeapTop()
+{
+    if (kSanitized || !mallocHasHugePages()) return;
+    static const std::uintptr_t pad = std::strtoull(mallocTunable("glibc.malloc.top_pad").c_str(), nullptr, 10);
+    static const std::uintptr_t start = [] { // start_brk, field 47 of /proc/self/stat (Linux 3.3)
+        std::ifstream in("/proc/self/stat");
+        std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::istringstream fields(stat.substr(std::min(stat.rfind(')') + 2, stat.size()))); // after the name
+        std::string field;
+        for (int i = 3; i <= 47 && fields >> field; ++i) // the first field after the name is the 3rd
+            if (i == 47) return std::uintptr_t(std::strtoull(field.c_str(), nullptr, 10));
+        return std::uintptr_t(0);
+    }();
+    const auto end = reinterpret_cast<std::uintptr_t>(::sbrk(0));
+    if (pad == 0 || start == 0 || end <= start) return;
+    const std::uintptr_t from = end - std::min(pad, end - start);
+    populatePages({PageRange{reinterpret_cast<const void*>(from), end - from}}, false);
+}
 
 /// The allocator of PageVector: a request of 1 MiB or more is mapped on its own in whole 2 MiB
 /// pages, advised MADV_HUGEPAGE, so that faulting it in costs a huge-page fault per 2 MiB rather

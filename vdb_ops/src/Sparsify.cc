@@ -6,6 +6,7 @@
 #include "isouq/GridMetadata.h"
 #include "isouq/Progress.h"
 
+#include "FreshPages.h"
 #include "Memory.h"
 
 #include <tbb/blocked_range.h>
@@ -418,6 +419,7 @@ void makeLayers(LayerSparsifier<W>& layers, int bk0, int bk1, bool threaded, Rea
     summarise(bk0, LayerPart::Own);
     for (int bk = bk0; bk < bk1; ++bk) {
         poll();
+        mc_internal::populateHeapTop(); // the layer's leaves come from malloc
         if (bk + 1 < layers.layers()) summarise(bk + 1, bk + 1 < bk1 ? LayerPart::Own : LayerPart::Bottom);
         layers.layer(bk, threaded, range, kept, [&](auto& leaves, const auto& tiles) { insert(bk, leaves, tiles); });
     }
