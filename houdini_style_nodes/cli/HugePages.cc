@@ -58,12 +58,12 @@ void useHugePagesForLargeInputs(int argc, char** argv)
     // own arena grows in 4 KiB steps and faulted in 17 000 more pages loading the 1 GiB scan
     // (docs/mesher.md "Memory pages"). Its lock is taken only by allocations above tcache's.
     // The heap grows 16 MiB ahead, which the loaders fault in outside that lock
-    // (vdb_ops/src/FreshPages.h populateHeapTop). Setting top_pad fixes glibc's sliding mmap
-    // threshold at 128 KiB; 32 MiB, the sliding one's ceiling, keeps mid-size arrays in the heap.
+    // (vdb_ops/src/FreshPages.h populateHeapTop). (Setting top_pad also fixes glibc's mmap
+    // threshold at 128 KiB; raising it to 32 MiB too made writing sphere800's PLY under MPI
+    // 0.6-0.9 s slower, bench/README.md "5 December 2026".)
     std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
     if (old.find("glibc.malloc.arena_max") == std::string::npos) value += ":glibc.malloc.arena_max=1";
     if (old.find("glibc.malloc.top_pad") == std::string::npos) value += ":glibc.malloc.top_pad=16777216";
-    if (old.find("glibc.malloc.mmap_threshold") == std::string::npos) value += ":glibc.malloc.mmap_threshold=33554432";
     if (::setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
     ::execv("/proc/self/exe", argv);
     // The exec failed: go on in this process, with the environment as it was.

@@ -4,8 +4,8 @@
 namespace isouq::cli {
 
 /// When an argument names a regular file of 16 MiB or more, re-executes this program once with
-/// glibc's malloc.hugetlb=1, malloc.arena_max=1, malloc.top_pad=16 MiB and malloc.mmap_threshold
-/// =32 MiB tunables added to GLIBC_TUNABLES (read by glibc only at start-up): malloc then asks
+/// glibc's malloc.hugetlb=1, malloc.arena_max=1 and malloc.top_pad=16 MiB tunables added to
+/// GLIBC_TUNABLES (read by glibc only at start-up): malloc then asks
 /// for transparent huge pages (MADV_HUGEPAGE) on the memory it maps, every thread allocates from
 /// the main arena, the one that gets them, and its heap grows 16 MiB ahead, which loaders fault
 /// in outside malloc's lock (vdb_ops/src/FreshPages.h populateHeapTop). A fresh

@@ -41,7 +41,7 @@ def volumes(tmp_path_factory):
 
 
 # The heap's growth the restart adds (houdini_style_nodes/cli/HugePages.cc).
-HEAP = "glibc.malloc.top_pad=16777216:glibc.malloc.mmap_threshold=33554432"
+HEAP = "glibc.malloc.top_pad=16777216"
 
 
 def run(cli, folder, source, name, **env_changes):

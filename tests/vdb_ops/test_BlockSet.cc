@@ -120,7 +120,7 @@ TEST_CASE("FreshPages: populateHeapTop faults in the heap's spare top", "[pages]
     if (!isouq::mc_internal::mallocHasHugePages()) {
         const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
         const std::string command = "GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.arena_max=1:"
-                                    "glibc.malloc.top_pad=16777216:glibc.malloc.mmap_threshold=33554432 '"
+                                    "glibc.malloc.top_pad=16777216 '"
             + self + "' -w NoTests 'FreshPages: populateHeapTop faults in the heap*' > /dev/null";
         REQUIRE(std::system(command.c_str()) == 0);
         return;
