@@ -88,7 +88,7 @@ inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
         const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(range.data) + range.bytes, page);
         // Malloc's heap in huge pages is advised already; advising it again takes the address
         // space's write lock, which waits for the other threads' faults in progress (8-15 ms a
-        // call on the 1 GiB raw scan, while a core idles: bench/README.md "5 December 2026").
+        // call on the 1 GiB raw scan, while a core idles: bench/README.md "4-5 December 2026").
         if (range.bytes >= kHugeFrom && !mallocHasHugePages()) {
             const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
             if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
@@ -130,7 +130,7 @@ constexpr bool kSanitized =
 /// (the CLI's restart: docs/mesher.md "Memory pages"), faults in that spare top of the heap now,
 /// outside malloc's lock. Else the allocation that first reaches a fresh 2 MiB page zeroes it
 /// while holding the one arena's lock, and every other thread's allocation waits: loading the
-/// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/README.md "5 December 2026"). For loops that
+/// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/README.md "4-5 December 2026"). For loops that
 /// allocate many small blocks on every thread (a scan's leaves); at most top_pad bytes more are
 /// resident, which the next allocations use.
 inline void populateHeapTop()

@@ -684,7 +684,8 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
     // turn from the largest down: a run is 1/(2 threads) of what is left, at least 2 layers, so
     // the last runs are short and no thread waits long for another at the end. (Eight equal
     // runs split by parallel_for gave one of 2 threads five: 40-100 ms of a core idle on the
-    // 1 GiB raw scan, bench/README.md "5 December 2026".) One thread reads one run, no halo twice.
+    // 1 GiB raw scan, bench/README.md "4-5 December 2026".) One thread reads one run: no halo
+    // is read twice.
     const int threads = int(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(),
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
     std::vector<int> runStarts{layer0};
