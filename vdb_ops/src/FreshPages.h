@@ -132,7 +132,7 @@ constexpr bool kSanitized =
 /// while holding the one arena's lock, and every other thread's allocation waits: loading the
 /// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/README.md "4-5 December 2026"). For loops that
 /// allocate many small blocks on every thread (a scan's leaves); at most top_pad bytes more are
-/// resident, which the next allocations use.
+/// resident, most of which the next allocations use.
 inline void populateHeapTop()
 {
     if (kSanitized || !mallocHasHugePages()) return;
