@@ -8,13 +8,12 @@
 
 #include "FreshPages.h"
 #include "Memory.h"
+#include "Threads.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/enumerable_thread_specific.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -686,8 +685,7 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
     // runs split by parallel_for gave one of 2 threads five: 40-100 ms of a core idle on the
     // 1 GiB raw scan, bench/README.md "4-5 December 2026".) One thread reads one run: no halo
     // is read twice.
-    const int threads = int(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(),
-        tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+    const int threads = threads_internal::threadsInUse();
     std::vector<int> runStarts{layer0};
     for (int left = layer1 - layer0; left > 0;) {
         const int run = threads == 1 ? left : std::min(left, std::max(2, (left + 2 * threads - 1) / (2 * threads)));

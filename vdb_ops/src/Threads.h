@@ -1,0 +1,20 @@
+// isouq (internal): how many threads a parallel loop started here will get.
+#pragma once
+
+#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cstddef>
+
+namespace isouq::threads_internal {
+
+/// The threads of the current arena, as limited by a tbb::global_control (the CLI's -j), which
+/// this_task_arena::max_concurrency() alone does not see.
+inline int threadsInUse()
+{
+    return int(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(),
+        tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
+}
+
+} // namespace isouq::threads_internal
