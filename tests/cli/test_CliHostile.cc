@@ -422,6 +422,34 @@ CliResult runTimed(const std::string& args, const fs::path& dir, const std::stri
 
 } // namespace
 
+TEST_CASE("CLI hostile: a raw scan's memory check counts the threads -j gives", "[cli][hostile]")
+{
+    // A 1024^2 uint8 slice: each thread's sparsifier holds about 34.6 MB (a ring of 24 slices of
+    // 1 MiB and 8 bytes per sample of column sums, Sparsify.cc sparsifierBytes). Under a 50 MB
+    // budget one fits and two do not: -j 1 meshes, -j 2 is refused before reading.
+    if (std::thread::hardware_concurrency() < 2) {
+        WARN("skipped: one core, so -j 2 runs one sparsifier");
+        return;
+    }
+    TempDir tmp;
+    const int n = 1024, nz = 8;
+    std::string voxels(std::size_t(n) * n * nz, '\0');
+    for (int z = 2; z < 6; ++z)
+        for (int y = 0; y < 16; ++y)
+            for (int x = 0; x < 16; ++x) voxels[(std::size_t(z) * n + y) * n + x] = char(200);
+    writeFile(tmp.path / "slab_1024x1024x8_uint8.raw", voxels);
+    const fs::path out = tmp.path / "out.ply";
+    const CliResult one = runTimed("mesh slab_1024x1024x8_uint8.raw -k 100 -j 1 -q -o out.ply", tmp.path,
+        "ISOUQ_MEMORY_LIMIT_MB=50");
+    INFO("stderr: " << (one.stderrLines.empty() ? std::string() : one.stderrLines[0]));
+    CHECK(one.status == 0);
+    CHECK(fs::exists(out));
+    fs::remove(out);
+    requireRefused(runTimed("mesh slab_1024x1024x8_uint8.raw -k 100 -j 2 -q -o out.ply", tmp.path,
+                       "ISOUQ_MEMORY_LIMIT_MB=50"),
+        "memory available", {out});
+}
+
 TEST_CASE("CLI hostile: NIfTI headers that lie", "[cli][hostile][nifti]")
 {
     TempDir tmp;

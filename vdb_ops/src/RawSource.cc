@@ -1,12 +1,11 @@
 // isouq: raw scans, `name_XxYxZ_dtype.raw` (SPEC §8; docs/inputs.md).
 #include "SourcesInternal.h"
+#include "Threads.h"
 
 #include "isouq/Bricks.h"
 
 #include <fcntl.h>
 #include <unistd.h>
-
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -165,7 +164,7 @@ LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupte
     const RawScan scan = rawScan(request);
     const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
     const int nz = scan.dims.z();
-    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
+    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
     const auto [isovalue, source] = rawIsovalue(request, scan.type->type,
         [&](const Range* range) { return rawStats(reader, 0, nz, range); });
     LoadedVolume volume = denseVolume(
@@ -187,7 +186,7 @@ DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, ope
     const RawScan scan = rawScan(request);
     const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
     const Coord dims = scan.dims;
-    checkLayersFit(reader, tbb::this_task_arena::max_concurrency(), request.input);
+    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
     const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + kBlock - 1) / kBlock;
     const int l0 = firstLayerOf(layers, piece, pieces), l1 = firstLayerOf(layers, piece + 1, pieces);
     const int z0 = std::min(l0 * kBlock, dims.z()), z1 = std::min(l1 * kBlock, dims.z());

@@ -156,7 +156,8 @@ private:
     int mFd = -1;
 };
 
-/// checkLayersFit for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw).
+/// checkLayersFit for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw: one
+/// per thread in use, threads_internal::threadsInUse(), which counts -j).
 void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input);
 
 /// What Otsu's threshold needs from the slices [z0, z1) of a raw scan; parts of a volume add up
