@@ -10,7 +10,9 @@
 #include <catch2/catch.hpp>
 #include <openvdb/io/File.h>
 #include <openvdb/tools/LevelSetSphere.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
@@ -444,6 +446,57 @@ TEST_CASE("VolumeSources: the skull's anisotropic spacing and documented isovalu
     CHECK(v.grid->voxelSize() == *r.spacing);
     CHECK(v.keptBlocks > 0);
     CHECK(v.keptBlocks < v.denseBlocks);
+}
+
+TEST_CASE("VolumeSources: a raw scan's tree is the same whatever the thread count", "[sources][raw][threads]")
+{
+    // 125 layers of 8 slices (the last one short), which 2, 3 and 8 threads make in runs that
+    // idle threads split (Sparsify.cc LayerRuns); one thread makes them in one run. Every
+    // voxel's value and state, the kept blocks and the range must be equal, and the active
+    // values the file's bytes.
+    const int X = 48, Y = 40, Z = 997;
+    std::vector<unsigned char> bytes(std::size_t(X) * Y * Z);
+    for (int z = 0; z < Z; ++z)
+        for (int y = 0; y < Y; ++y)
+            for (int x = 0; x < X; ++x)
+                bytes[x + std::size_t(X) * (y + std::size_t(Y) * z)] = static_cast<unsigned char>(
+                    128.0 + 120.0 * std::sin(x / 5.0) * std::cos(y / 7.0) * std::sin(z / 23.0));
+    TempDir tmp;
+    const std::string path = (tmp.path / "waves_48x40x997_uint8.raw").string();
+    writeBytes(path, bytes);
+    const auto loadWith = [&](int threads) {
+        tbb::global_control limit(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+        tbb::task_arena arena(threads);
+        return arena.execute([&] { return isouq::loadVolume(request(path, 128.0f)); });
+    };
+    const isouq::LoadedVolume one = loadWith(1);
+    auto oneAcc = one.grid->getConstAccessor();
+    std::size_t wrong = 0;
+    for (int z = 0; z < Z; ++z)
+        for (int y = 0; y < Y; ++y)
+            for (int x = 0; x < X; ++x)
+                if (oneAcc.isValueOn(Coord(x, y, z)))
+                    wrong += oneAcc.getValue(Coord(x, y, z)) != float(bytes[x + std::size_t(X) * (y + std::size_t(Y) * z)]);
+    CHECK(wrong == 0);
+    CHECK(one.keptBlocks > 1000);
+    CHECK(one.keptBlocks < one.denseBlocks);
+    for (int threads : {2, 3, 8}) {
+        INFO(threads << " threads");
+        const isouq::LoadedVolume many = loadWith(threads);
+        CHECK(many.description == one.description);
+        CHECK(many.keptBlocks == one.keptBlocks);
+        CHECK(many.grid->tree().leafCount() == one.grid->tree().leafCount());
+        CHECK(many.grid->tree().activeVoxelCount() == one.grid->tree().activeVoxelCount());
+        auto acc = many.grid->getConstAccessor();
+        std::size_t differ = 0;
+        for (int z = -1; z <= Z; ++z)
+            for (int y = -1; y <= Y; ++y)
+                for (int x = -1; x <= X; ++x) {
+                    const Coord c(x, y, z);
+                    differ += acc.getValue(c) != oneAcc.getValue(c) || acc.isValueOn(c) != oneAcc.isValueOn(c);
+                }
+        CHECK(differ == 0);
+    }
 }
 
 TEST_CASE("VolumeSources: an interrupter stops loading", "[sources][interrupt]")

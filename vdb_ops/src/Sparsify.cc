@@ -20,6 +20,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <deque>
 #include <mutex>
 #include <sstream>
 #include <type_traits>
@@ -402,11 +403,13 @@ private:
     std::vector<float> mTiles;
 };
 
-/// Makes the layers [bk0, bk1) with @a layers, reading slices with @a read(z0, z1, out) (out:
-/// the ring slots of z0, contiguous), inner loops in parallel when @a threaded; hands each
-/// layer's blocks to @a insert(bk, leaves, tiles), polling @a poll() before each.
-template <typename W, typename Read, typename Insert, typename Poll>
-void makeLayers(LayerSparsifier<W>& layers, int bk0, int bk1, bool threaded, Read&& read, Insert&& insert,
+/// Makes layer @a bk0 and the ones after it while @a more(bk) says that layer bk + 1 is this
+/// run's too (asked once per layer, before that layer is read ahead), with @a layers, reading
+/// slices with @a read(z0, z1, out) (out: the ring slots of z0, contiguous), inner loops in
+/// parallel when @a threaded; hands each layer's blocks to @a insert(bk, leaves, tiles), polling
+/// @a poll() before each.
+template <typename W, typename More, typename Read, typename Insert, typename Poll>
+void makeLayers(LayerSparsifier<W>& layers, int bk0, More&& more, bool threaded, Read&& read, Insert&& insert,
     Poll&& poll, Range& range, std::size_t& kept)
 {
     auto summarise = [&](int bk, LayerPart part) {
@@ -414,14 +417,15 @@ void makeLayers(LayerSparsifier<W>& layers, int bk0, int bk1, bool threaded, Rea
         read(z0, z1, layers.slot(z0));
         layers.columns(bk, part, threaded);
     };
-    if (bk0 >= bk1) return;
     if (bk0 > 0) summarise(bk0 - 1, LayerPart::Top);
     summarise(bk0, LayerPart::Own);
-    for (int bk = bk0; bk < bk1; ++bk) {
+    for (int bk = bk0;; ++bk) {
         poll();
         mc_internal::populateHeapTop(); // the layer's leaves come from malloc
-        if (bk + 1 < layers.layers()) summarise(bk + 1, bk + 1 < bk1 ? LayerPart::Own : LayerPart::Bottom);
+        const bool next = more(bk);
+        if (bk + 1 < layers.layers()) summarise(bk + 1, next ? LayerPart::Own : LayerPart::Bottom);
         layers.layer(bk, threaded, range, kept, [&](auto& leaves, const auto& tiles) { insert(bk, leaves, tiles); });
+        if (!next) return;
     }
 }
 
@@ -493,7 +497,8 @@ SparseResult sparsify(SliceSource& source, KeepBlocks rule, double k,
     result.blocks = std::size_t(layers.blocksPerLayer()) * std::size_t(count);
     const LayerInserter insert{*result.tree, (source.dims.x() + kBlock - 1) / kBlock};
     int done = 0;
-    makeLayers(layers, layer0, layer1, /*threaded=*/true,
+    if (layer0 >= layer1) return result;
+    makeLayers(layers, layer0, [&](int bk) { return bk + 1 < layer1; }, /*threaded=*/true,
         [&](int z0, int z1, float* out) { source.read(z0, z1 - z0, out); }, insert,
         [&] { throwIfInterrupted(interrupter, int(100.0 * done++ / std::max(count, 1))); }, result.range, result.kept);
     if (result.range.min <= result.range.max) {
@@ -668,6 +673,73 @@ double otsuOfRawStats(const RawStats& stats, SampleType type)
     return otsuThreshold(histogram, range.min, range.max);
 }
 
+namespace {
+
+/// The layers [layer0, layer1) as one run per thread, each made in order by its thread; a
+/// thread done with its own run splits off the upper half of what is left of the largest other
+/// (kMinSplit layers or more left), so no core waits long at the end, while the kHalo slices
+/// either side of a run are read again only at the few splits. (Fixed runs of 1/(2 threads) of
+/// what was left, down to 2 layers, read 78 slices twice on the 1 GiB raw scan: 25 ms of a
+/// -j 0 load, bench/README.md "5 December 2026"; 8 equal runs left a core idle 40-100 ms.)
+class LayerRuns {
+public:
+    struct Run {
+        Run(int first, int end) : first(first), next(first + 1), end(end) {}
+        std::mutex mutex;
+        const int first; ///< made by the run's thread, never split off
+        int next, end;   ///< [next, end): left to split; the layers before next are committed
+    };
+
+    LayerRuns(int layer0, int layer1, int threads)
+    {
+        const std::int64_t n = std::max(layer1 - layer0, 0);
+        for (int t = 0; t < threads; ++t)
+            mRuns.emplace_back(layer0 + int(n * t / threads), layer0 + int(n * (t + 1) / threads));
+    }
+    /// Thread @a t's own run, or nullptr when it is empty.
+    Run* own(int t)
+    {
+        Run& run = mRuns[std::size_t(t)];
+        return run.first < run.end ? &run : nullptr;
+    }
+    /// Whether layer @a bk + 1 is still @a run's, which commits it to the run.
+    static bool more(Run& run, int bk)
+    {
+        const std::lock_guard<std::mutex> lock(run.mutex);
+        if (bk + 1 >= run.end) return false;
+        run.next = bk + 2;
+        return true;
+    }
+    /// A new run split off the largest run left, or nullptr when none has kMinSplit layers left.
+    Run* split()
+    {
+        const std::lock_guard<std::mutex> list(mListMutex); // one thief at a time; owners never take it
+        for (;;) {
+            Run* victim = nullptr;
+            int most = 0;
+            for (Run& run : mRuns) {
+                const std::lock_guard<std::mutex> lock(run.mutex);
+                if (run.end - run.next > most) most = run.end - run.next, victim = &run;
+            }
+            if (most < kMinSplit) return nullptr;
+            const std::lock_guard<std::mutex> lock(victim->mutex);
+            const int left = victim->end - victim->next; // its thread may have gone on meanwhile
+            if (left < kMinSplit) continue;
+            const int mid = victim->end - left / 2;
+            Run& mine = mRuns.emplace_back(mid, victim->end);
+            victim->end = mid;
+            return &mine;
+        }
+    }
+
+private:
+    static constexpr int kMinSplit = 3;
+    std::mutex mListMutex;
+    std::deque<Run> mRuns; // references stay valid as runs are added
+};
+
+} // namespace
+
 SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, KeepBlocks rule, double isovalue,
     openvdb::util::NullInterrupter* interrupter)
 {
@@ -679,30 +751,21 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
     const LayerInserter insert{*result.tree, bx};
     std::mutex treeMutex;
     std::atomic<int> layersDone{0};
-    // Runs of layers, each reading kHalo slices more on either side, which the threads take in
-    // turn from the largest down: a run is 1/(2 threads) of what is left, at least 2 layers, so
-    // the last runs are short and no thread waits long for another at the end. (Eight equal
-    // runs split by parallel_for gave one of 2 threads five: 40-100 ms of a core idle on the
-    // 1 GiB raw scan, bench/README.md "4-5 December 2026".) One thread reads one run: no halo
-    // is read twice.
     const int threads = threads_internal::threadsInUse();
-    std::vector<int> runStarts{layer0};
-    for (int left = layer1 - layer0; left > 0;) {
-        const int run = threads == 1 ? left : std::min(left, std::max(2, (left + 2 * threads - 1) / (2 * threads)));
-        runStarts.push_back(runStarts.back() + run);
-        left -= run;
-    }
-    std::atomic<std::size_t> nextRun{0};
+    LayerRuns runs(layer0, layer1, threads);
     withRawSamples(reader.type(), [&](auto sample) {
         using W = decltype(sample);
         tbb::enumerable_thread_specific<LayerSparsifier<W>> sparsifiers(dims, rule, isovalue);
         tbb::enumerable_thread_specific<std::vector<char>> bytes;
         tbb::enumerable_thread_specific<std::pair<Range, std::size_t>> totals;
-        tbb::parallel_for(0, threads, [&](int) {
+        tbb::parallel_for(0, threads, [&](int t) {
             auto& [range, kept] = totals.local();
-            for (std::size_t r; (r = nextRun++) + 1 < runStarts.size();)
-                makeLayers(sparsifiers.local(), runStarts[r], runStarts[r + 1], /*threaded=*/false,
-                    [&](int z0, int z1, W* out) { readAs(reader, z0, z1, out, bytes.local()); },
+            for (LayerRuns::Run* run = runs.own(t); run; run = runs.split())
+                makeLayers(sparsifiers.local(), run->first, [run](int bk) { return LayerRuns::more(*run, bk); },
+                    /*threaded=*/false,
+                    [&](int z0, int z1, W* out) {
+                        readAs(reader, z0, z1, out, bytes.local());
+                    },
                     [&](int bk, auto& leaves, const auto& tiles) {
                         const std::lock_guard<std::mutex> lock(treeMutex);
                         insert(bk, leaves, tiles);
