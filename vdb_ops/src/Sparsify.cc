@@ -679,7 +679,7 @@ namespace {
 /// thread done with its own run splits off the upper half of what is left of the largest other
 /// (kMinSplit layers or more left), so no core waits long at the end, while the kHalo slices
 /// either side of a run are read again only at the few splits. (Fixed runs of 1/(2 threads) of
-/// what was left, down to 2 layers, read 78 slices twice on the 1 GiB raw scan: 25 ms of a
+/// what was left, down to 2 layers, read 78 slices twice on the 1 GiB raw scan: 25-40 ms of a
 /// -j 0 load, bench/README.md "5 December 2026"; 8 equal runs left a core idle 40-100 ms.)
 class LayerRuns {
 public:
