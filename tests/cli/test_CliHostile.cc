@@ -424,9 +424,9 @@ CliResult runTimed(const std::string& args, const fs::path& dir, const std::stri
 
 TEST_CASE("CLI hostile: a raw scan's memory check counts the threads -j gives", "[cli][hostile]")
 {
-    // A 1024^2 uint8 slice: each thread's sparsifier holds about 34.6 MB (a ring of 24 slices of
-    // 1 MiB and 8 bytes per sample of column sums, Sparsify.cc sparsifierBytes). Under a 50 MB
-    // budget one fits and two do not: -j 1 meshes, -j 2 is refused before reading.
+    // 1024^2 uint8 slices: each thread's sparsifier is counted as 34.6 MB (Sparsify.cc
+    // sparsifierBytes: 32 bytes per sample of a slice, and the columns' summaries). Under a
+    // 50 MB budget one fits and two do not: -j 1 meshes, -j 2 is refused before reading.
     if (std::thread::hardware_concurrency() < 2) {
         WARN("skipped: one core, so -j 2 runs one sparsifier");
         return;
