@@ -763,9 +763,7 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
             for (LayerRuns::Run* run = runs.own(t); run; run = runs.split())
                 makeLayers(sparsifiers.local(), run->first, [run](int bk) { return LayerRuns::more(*run, bk); },
                     /*threaded=*/false,
-                    [&](int z0, int z1, W* out) {
-                        readAs(reader, z0, z1, out, bytes.local());
-                    },
+                    [&](int z0, int z1, W* out) { readAs(reader, z0, z1, out, bytes.local()); },
                     [&](int bk, auto& leaves, const auto& tiles) {
                         const std::lock_guard<std::mutex> lock(treeMutex);
                         insert(bk, leaves, tiles);
