@@ -20,6 +20,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <numeric>
 
@@ -157,9 +158,13 @@ std::string lowerExtension(const std::string& path)
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
 {
     const bool dense = isDensePieceInput(request.input);
-    if (!dense && lowerExtension(request.input) != ".vdb")
-        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb and .raw files, field: "
+    if (!dense && lowerExtension(request.input) != ".vdb") {
+        std::error_code ec;
+        // A missing input: one process's error line (loadVolume throws it).
+        if (request.input.rfind("memory:", 0) != 0 && !std::filesystem::exists(request.input, ec)) loadVolume(request);
+        throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb files, scans, field: "
             "and formula: inputs are read by pieces; docs/mpi.md); run it in one process");
+    }
     if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
     VolumeOnRanks out;
     auto piece = std::make_shared<VolumePiece>();

@@ -16,8 +16,8 @@ struct VolumeOnRanks {
 };
 
 /// loadVolume by pieces, the block order cut into one piece per rank: a .vdb with delayed
-/// loading (topology in memory, leaf values in the file until touched), a .raw scan, field: or
-/// formula: input by z-layers (loadDensePiece); then checkScalarVolume over the values of every
+/// loading (topology in memory, leaf values in the file until touched), a scan (.raw, NIfTI,
+/// NRRD, TIFF, DICOM), field: or formula: input by z-layers (loadDensePiece); then checkScalarVolume over the values of every
 /// rank's own leaves joined (with the Otsu histograms of a fog volume without an isovalue).
 /// @throw InputError as loadVolume and checkScalarVolume, on every rank.
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter);

@@ -433,7 +433,7 @@ private:
 
 } // namespace
 
-LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+DensePiece readDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter, const ScanLoader& load)
 {
     const std::string& path = request.input;
     rejectRawFlags(request, "a DICOM series", false);
@@ -513,7 +513,7 @@ LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrup
     std::string name = fs::path(path).filename().string();
     if (name.empty()) name = fs::path(path).parent_path().filename().string();
     const std::string what = name + ": DICOM series of " + std::to_string(count) + " slices, " + toString(type);
-    return loadScan(source, request, name, affine, "DICOM image position and orientation (LPS)", what, interrupter);
+    return load(source, {name, affine, "DICOM image position and orientation (LPS)", what});
 }
 
 } // namespace isouq::sources_internal

@@ -114,7 +114,7 @@ std::array<double, 16> rowMajor(const nifti_dmat44& m)
 
 } // namespace
 
-LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+DensePiece readNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* /*interrupter*/, const ScanLoader& load)
 {
     const std::string& path = request.input;
     const std::uint64_t size = fileSize(path);
@@ -179,7 +179,7 @@ LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrup
         + " " + toString(*type);
     if (source.slope() != 1.0 || source.inter() != 0.0)
         what += " scaled by " + fmt(source.slope()) + " + " + fmt(source.inter());
-    return loadScan(source, request, name, affine, geometry, what, interrupter);
+    return load(source, {name, affine, geometry, what});
 }
 
 } // namespace isouq::sources_internal

@@ -248,7 +248,7 @@ std::vector<std::string> nrrdDataFiles(const std::string& path)
     return files;
 }
 
-LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+DensePiece readNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* /*interrupter*/, const ScanLoader& load)
 {
     const std::string& path = request.input;
     fileSize(path);
@@ -308,7 +308,7 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
         const Coord size(int(n.axis[0].size), int(n.axis[1].size), int(n.axis[2].size));
         NrrdStreamSlices source(path, io->dataFile, encoding == "gzip", io->endian == airEndianBig, *type, size,
             io->byteSkip);
-        return loadScan(source, request, name, affine, geometry, what, interrupter);
+        return load(source, {name, affine, geometry, what});
     }
     // teem allocates the whole volume before it decodes: refuse what cannot fit first.
     const std::uint64_t whole = std::uint64_t(n.axis[0].size) * n.axis[1].size * n.axis[2].size * sampleBytes(*type);
@@ -319,7 +319,7 @@ LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupt
     if (nrrdLoad(nrrd.get(), path.c_str(), nullptr))
         throw InputError("cannot read the data of '" + path + "': " + teemError());
     NrrdSlices source(*nrrd, *type);
-    return loadScan(source, request, name, affine, geometry, what, interrupter);
+    return load(source, {name, affine, geometry, what});
 }
 
 } // namespace isouq::sources_internal

@@ -1,7 +1,9 @@
 // isouq: what the scans with headers share (NIfTI, NRRD, TIFF, DICOM; docs/inputs.md "Scans
-// with headers"): sample decoding, the affine as the grid transform, the .raw-only flags, the
-// capture of what their libraries print.
+// with headers"): sample decoding, the affine as the grid transform, loading in one process or
+// by pieces (SPEC §9; docs/mpi.md), the .raw-only flags, the capture of what their libraries print.
 #include "SourcesInternal.h"
+
+#include "isouq/Bricks.h"
 
 #include <unistd.h>
 
@@ -143,35 +145,87 @@ void rejectRawFlags(const VolumeRequest& request, const std::string& format, boo
     }
 }
 
-LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const std::string& name,
-    const std::array<double, 16>& indexToWorld, const std::string& geometry, const std::string& what,
-    openvdb::util::NullInterrupter* interrupter)
+namespace {
+
+/// The grid transform of @a header's affine for a scan of @a dims samples.
+/// @throw InputError if the affine is not finite or singular, or the scan has no cell.
+openvdb::math::Transform::Ptr scanTransform(const VolumeRequest& request, const ScanHeader& header, const Coord& dims)
 {
+    const std::array<double, 16>& a = header.indexToWorld;
     // OpenVDB multiplies row vectors: its matrix is the transpose of the column-vector one.
     openvdb::Mat4d m;
     for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) m(c, r) = indexToWorld[4 * r + c];
+        for (int c = 0; c < 4; ++c) m(c, r) = a[std::size_t(4 * r + c)];
     bool finite = true;
-    for (double v : indexToWorld) finite = finite && std::isfinite(v);
+    for (double v : a) finite = finite && std::isfinite(v);
     const double det = m.getMat3().det();
     if (!finite || !(std::fabs(det) > 0.0) || m(0, 3) != 0 || m(1, 3) != 0 || m(2, 3) != 0 || m(3, 3) != 1) {
         std::string text;
-        for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 4; ++c) text += (text.empty() ? "" : " ") + fmt(indexToWorld[4 * r + c]);
-        throw InputError("'" + request.input + "' has an unusable " + geometry + " (index-to-world rows " + text
+        for (std::size_t r = 0; r < 3; ++r)
+            for (std::size_t c = 0; c < 4; ++c) text += (text.empty() ? "" : " ") + fmt(a[4 * r + c]);
+        throw InputError("'" + request.input + "' has an unusable " + header.geometry + " (index-to-world rows " + text
             + "): it must be finite and invertible");
     }
-    const Coord& d = source.dims;
-    if (d.x() < 2 || d.y() < 2 || d.z() < 2) {
-        throw InputError("'" + request.input + "': " + std::to_string(d.x()) + "x" + std::to_string(d.y()) + "x"
-            + std::to_string(d.z()) + " has no cell (a cell needs 2 samples along each axis): nothing to mesh");
+    if (dims.x() < 2 || dims.y() < 2 || dims.z() < 2) {
+        throw InputError("'" + request.input + "': " + std::to_string(dims.x()) + "x" + std::to_string(dims.y()) + "x"
+            + std::to_string(dims.z()) + " has no cell (a cell needs 2 samples along each axis): nothing to mesh");
     }
+    return openvdb::math::Transform::createLinearTransform(m);
+}
+
+void nameScan(LoadedVolume& volume, const ScanHeader& header, openvdb::math::Transform::Ptr transform)
+{
+    volume.grid->setName(header.name);
+    volume.grid->setTransform(transform);
+    volume.geometry = header.geometry;
+    volume.description = header.what + " " + volume.description + ", world from the " + header.geometry;
+}
+
+} // namespace
+
+LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const ScanHeader& header,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    const openvdb::math::Transform::Ptr transform = scanTransform(request, header, source.dims);
     LoadedVolume volume = loadDense(source, request, interrupter);
-    volume.grid->setName(name);
-    volume.grid->setTransform(openvdb::math::Transform::createLinearTransform(m));
-    volume.geometry = geometry;
-    volume.description = what + " " + volume.description + ", world from the " + geometry;
+    nameScan(volume, header, transform);
     return volume;
+}
+
+DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, const ScanHeader& header,
+    const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+{
+    const openvdb::math::Transform::Ptr transform = scanTransform(request, header, source.dims);
+    checkLayersFit(source, request.input);
+    const int layers = (source.dims.z() + kBlock - 1) / kBlock;
+    const int l0 = firstLayerOf(layers, comm.rank(), comm.size()), l1 = firstLayerOf(layers, comm.rank() + 1, comm.size());
+    const int z0 = std::min(l0 * kBlock, source.dims.z()), z1 = std::min(l1 * kBlock, source.dims.z());
+    float isovalue = 0.0f;
+    if (request.isovalue) {
+        isovalue = *request.isovalue;
+    } else { // otsuOfSource's two passes, each piece over its own slices, joined in piece order
+        SourceStats part;
+        comm.agree([&] { part = sourceStats(source, z0, z1); });
+        Range range;
+        for (const PieceComm::Words& w : comm.allgather({bitsOf(part.range.min), bitsOf(part.range.max)})) {
+            Range r;
+            r.min = doubleOf(w[0]), r.max = doubleOf(w[1]);
+            range.add(r);
+        }
+        checkOtsuRange(range);
+        comm.agree([&] { part = sourceStats(source, z0, z1, &range); });
+        std::array<std::uint64_t, 256> histogram{};
+        for (const PieceComm::Words& w : comm.allgather(PieceComm::Words(part.histogram.begin(), part.histogram.end())))
+            for (std::size_t b = 0; b < histogram.size(); ++b) histogram[b] += w[b];
+        isovalue = float(otsuThreshold(histogram, range.min, range.max));
+    }
+    if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");
+    SparseResult sparse;
+    comm.agree([&] { sparse = sparsify(source, request.keep, isovalue, interrupter, l0, l1); });
+    DensePiece piece = spreadLayers(std::move(sparse), source.dims, isovalue, comm);
+    piece.volume.isovalueSource = request.isovalue ? "given" : "Otsu (starting value)";
+    nameScan(piece.volume, header, transform);
+    return piece;
 }
 
 } // namespace isouq::sources_internal

@@ -12,6 +12,7 @@
 #include <array>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -91,6 +92,16 @@ std::vector<std::string> nrrdDataFiles(const std::string& path);
 /// a small header or compressed file can describe huge slices. @throw InputError.
 void checkLayersFit(const SliceSource& source, const std::string& input);
 
+/// The finite range of the slices [z0, z1) of @a source, and with @a histogramRange their
+/// 256-bin histogram over that range (histogramBin). Parts of a volume add up, so pieces can
+/// join theirs (loadScanPiece).
+struct SourceStats {
+    Range range;
+    std::array<std::uint64_t, 256> histogram{};
+};
+SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange = nullptr);
+/// InputError when a volume's finite @a range gives no default isovalue (no finite value, constant data).
+void checkOtsuRange(const Range& range);
 /// Otsu's threshold of a dense source (two streaming passes: range, then histogram).
 double otsuOfSource(SliceSource& source);
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).
@@ -184,26 +195,41 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
 /// The largest dimension a dense source may have (OpenVDB's 32-bit index space, less a leaf).
 constexpr std::uint64_t kMaxDim = std::numeric_limits<std::int32_t>::max() - kBlock;
 
-/// A scan with a header (NIfTI, NRRD, TIFF, DICOM): the isovalue (given, else Otsu), the sparse
-/// grid, its name and its index-to-world affine @a indexToWorld (row-major, column-vector
-/// convention, as Mesh::indexToWorld: world = M (i, j, k, 1)). @a geometry says where the affine
-/// came from ("sform", "space directions", ...); @a what is the description's start.
-/// @throw InputError if the affine is not finite or singular, or as buildDense.
-LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const std::string& name,
-    const std::array<double, 16>& indexToWorld, const std::string& geometry, const std::string& what,
+/// What a scan's header (NIfTI, NRRD, TIFF, DICOM) says besides its slices: the grid's
+/// name, the index-to-world affine (row-major, column-vector convention, as
+/// Mesh::indexToWorld: world = M (i, j, k, 1)), where that came from ("sform", "space
+/// directions", ...) and the description's start.
+struct ScanHeader {
+    std::string name;
+    std::array<double, 16> indexToWorld{};
+    std::string geometry, what;
+};
+
+/// A scan's slices: the isovalue (given, else Otsu), the sparse grid with the header's name
+/// and affine. @throw InputError if the affine is not finite or singular, or as buildDense.
+LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const ScanHeader& header,
     openvdb::util::NullInterrupter* interrupter);
+
+/// What a scan reader hands its slices and header to: loadScan in one process (the piece is
+/// the whole volume), loadScanPiece by pieces.
+using ScanLoader = std::function<DensePiece(SliceSource&, const ScanHeader&)>;
+/// Reads a scan's header, opens its slices and returns @a load of them (NiftiSource.cc, ...).
+using ScanReader = DensePiece (*)(const VolumeRequest&, openvdb::util::NullInterrupter*, const ScanLoader&);
+/// The reader of the scan with a header that @a input names (by its suffix; a folder of TIFF
+/// slices or of a DICOM series), nullptr for other inputs.
+ScanReader scanReaderOf(const std::string& input);
 
 /// Refuses the .raw-only flags for a scan that has its own header; @a spacing too unless the
 /// format takes it from the command line (TIFF).
 void rejectRawFlags(const VolumeRequest& request, const std::string& format, bool spacingAllowed);
 
 LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // RawSource.cc
-LoadedVolume loadNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NiftiSource.cc
-LoadedVolume loadNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // NrrdSource.cc
-LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // TiffSource.cc
+DensePiece readNifti(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter, const ScanLoader& load); // NiftiSource.cc
+DensePiece readNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter, const ScanLoader& load); // NrrdSource.cc
+DensePiece readTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter, const ScanLoader& load); // TiffSource.cc
 /// A folder holding .tif/.tiff files (else a folder is read as a DICOM series).
 bool isTiffFolder(const std::string& path);
-LoadedVolume loadDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter); // DicomSource.cc
+DensePiece readDicom(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter, const ScanLoader& load); // DicomSource.cc
 
 LoadedVolume loadVdb(const VolumeRequest& request);                                                // VdbSource.cc
 /// The isovalue (given, 0 for a level set, else Otsu) and description of a sparse @a grid
@@ -237,6 +263,12 @@ inline int firstLayerOf(int layers, int piece, int pieces) { return int(std::int
 /// caller names the volume (name, transform, description).
 /// @throw InputError as denseVolume, on every piece.
 DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue, const PieceComm& comm);
+
+/// loadScan by pieces: Otsu's statistics of each piece's slices joined in piece order, then
+/// as a raw scan (ScanSource.cc). A gzip stream cannot seek: each piece decompresses it from
+/// the start to its last slice.
+DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, const ScanHeader& header,
+    const PieceComm& comm, openvdb::util::NullInterrupter* interrupter);
 
 /// loadRaw and loadField by pieces.
 DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter);

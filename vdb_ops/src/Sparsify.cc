@@ -48,30 +48,39 @@ int histogramBin(double v, double lo, double hi)
 }
 
 
-/// Two streaming passes over a dense source: finite range, then a 256-bin histogram.
-double otsuOfSource(SliceSource& source)
+SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange)
 {
-    const int slab = kBlock, nz = source.dims.z();
+    const int slab = kBlock;
     std::vector<float> buffer(std::size_t(source.dims.x()) * source.dims.y() * slab);
-    Range range;
-    std::array<std::uint64_t, 256> histogram{};
-    for (int pass = 0; pass < 2; ++pass) {
-        for (int z0 = 0; z0 < nz; z0 += slab) {
-            const int count = std::min(slab, nz - z0);
-            source.read(z0, count, buffer.data());
-            const std::size_t n = std::size_t(source.dims.x()) * source.dims.y() * count;
-            for (std::size_t i = 0; i < n; ++i) {
-                if (!std::isfinite(buffer[i])) continue;
-                if (pass == 0) range.add(buffer[i]);
-                else ++histogram[histogramBin(buffer[i], range.min, range.max)];
-            }
+    SourceStats stats;
+    for (int z = z0; z < z1; z += slab) {
+        const int count = std::min(slab, z1 - z);
+        source.read(z, count, buffer.data());
+        const std::size_t n = std::size_t(source.dims.x()) * source.dims.y() * count;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (!std::isfinite(buffer[i])) continue;
+            if (!histogramRange) stats.range.add(buffer[i]);
+            else ++stats.histogram[histogramBin(buffer[i], histogramRange->min, histogramRange->max)];
         }
     }
+    return stats;
+}
+
+void checkOtsuRange(const Range& range)
+{
     if (!(range.min <= range.max)) throw InputError("the data has no finite value; nothing to mesh");
     if (!(range.min < range.max))
         throw InputError("constant data (every value is " + fmt(range.min) + "): no surface and no default "
                          "isovalue; nothing to mesh");
-    return otsuThreshold(histogram, range.min, range.max);
+}
+
+/// Two streaming passes over a dense source: finite range, then a 256-bin histogram.
+double otsuOfSource(SliceSource& source)
+{
+    const int nz = source.dims.z();
+    const Range range = sourceStats(source, 0, nz).range;
+    checkOtsuRange(range);
+    return otsuThreshold(sourceStats(source, 0, nz, &range).histogram, range.min, range.max);
 }
 
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).

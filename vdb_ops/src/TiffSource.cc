@@ -243,7 +243,7 @@ bool isTiffFolder(const std::string& path)
     return false;
 }
 
-LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
+DensePiece readTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* /*interrupter*/, const ScanLoader& load)
 {
     TIFFSetErrorHandler(captureError);
     TIFFSetWarningHandler(ignoreWarning);
@@ -289,7 +289,7 @@ LoadedVolume loadTiff(const VolumeRequest& request, openvdb::util::NullInterrupt
     const std::string what = fs::path(files[0]).filename().string()
         + (files.size() > 1 ? " and " + std::to_string(files.size() - 1) + " more slices" : std::string())
         + ": TIFF " + toString(source.type());
-    return loadScan(source, request, name, affine, geometry, what, interrupter);
+    return load(source, {name, affine, geometry, what});
 }
 
 } // namespace isouq::sources_internal

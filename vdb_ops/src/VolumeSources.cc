@@ -30,6 +30,16 @@ bool endsWith(const std::string& s, const std::string& suffix)
             [](char a, char b) { return std::tolower(a) == std::tolower(b); });
 }
 
+ScanReader scanReaderOf(const std::string& input)
+{
+    if (endsWith(input, ".nii") || endsWith(input, ".nii.gz")) return readNifti;
+    if (endsWith(input, ".nrrd") || endsWith(input, ".nhdr")) return readNrrd;
+    if (endsWith(input, ".tif") || endsWith(input, ".tiff")) return readTiff;
+    std::error_code ec;
+    if (fs::is_directory(input, ec)) return isTiffFolder(input) ? readTiff : readDicom;
+    return nullptr;
+}
+
 } // namespace sources_internal
 
 namespace {
@@ -42,12 +52,13 @@ LoadedVolume loadSource(const VolumeRequest& request, openvdb::util::NullInterru
     if (input.rfind("memory:", 0) == 0) return si::loadMemory(request, interrupter);
     if (si::endsWith(input, ".vdb")) return si::loadVdb(request);
     if (si::endsWith(input, ".raw")) return si::loadRaw(request, interrupter);
-    if (si::endsWith(input, ".nii") || si::endsWith(input, ".nii.gz")) return si::loadNifti(request, interrupter);
-    if (si::endsWith(input, ".nrrd") || si::endsWith(input, ".nhdr")) return si::loadNrrd(request, interrupter);
-    if (si::endsWith(input, ".tif") || si::endsWith(input, ".tiff")) return si::loadTiff(request, interrupter);
-    std::error_code ec;
-    if (std::filesystem::is_directory(input, ec))
-        return si::isTiffFolder(input) ? si::loadTiff(request, interrupter) : si::loadDicom(request, interrupter);
+    if (const si::ScanReader read = si::scanReaderOf(input)) {
+        return read(request, interrupter, [&](si::SliceSource& source, const si::ScanHeader& header) {
+            DensePiece whole;
+            whole.volume = si::loadScan(source, request, header, interrupter);
+            return whole;
+        }).volume;
+    }
     si::fileSize(input); // a missing file says so first
     throw InputError("cannot tell what '" + input
         + "' is: expected a .vdb, .raw, .nii, .nii.gz, .nrrd, .nhdr, .tif or .tiff file, a folder of TIFF slices or of a DICOM series, field:NAME or formula:EXPR");
@@ -92,15 +103,20 @@ DensePiece loadDensePiece(const VolumeRequest& request, const PieceComm& comm, o
         piece = si::loadFieldPiece(*field, request, comm, interrupter);
     else if (si::endsWith(request.input, ".raw"))
         piece = si::loadRawPiece(request, comm, interrupter);
+    else if (const si::ScanReader read = si::scanReaderOf(request.input))
+        piece = read(request, interrupter, [&](si::SliceSource& source, const si::ScanHeader& header) {
+            return si::loadScanPiece(source, request, header, comm, interrupter);
+        });
     else
-        throw InputError("INPUT '" + request.input + "' is not read by layers (a .raw scan, field:NAME or formula:EXPR)");
+        throw InputError("INPUT '" + request.input + "' is not read by layers (a scan, field:NAME or formula:EXPR)");
     piece.volume.input = request.input;
     return piece;
 }
 
 bool isDensePieceInput(const std::string& input)
 {
-    return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0 || sources_internal::endsWith(input, ".raw");
+    return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0 || sources_internal::endsWith(input, ".raw")
+        || sources_internal::scanReaderOf(input);
 }
 
 } // namespace isouq

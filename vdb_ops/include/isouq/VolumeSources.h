@@ -137,17 +137,17 @@ struct DensePiece {
     std::uint64_t voxelsRead = 0;          ///< samples this piece read from the file or computed
 };
 
-/// loadVolume of a dense source read by z-layers, a raw scan or a field: or formula: input, by
-/// pieces (collective over @a comm): piece p reads (a raw scan, with positioned reads) or
-/// samples (a field) its z-layers of 8 slices, [L p / P, L (p + 1) / P) of the L layers, and
-/// the 3 slices around them, and sparsifies them; a raw scan's Otsu statistics, the ranges and
+/// loadVolume of a dense source read by z-layers, a scan (.raw, NIfTI, NRRD, TIFF, DICOM) or a
+/// field: or formula: input, by pieces (collective over @a comm): piece p reads (a raw scan,
+/// with positioned reads) or samples (a field) its z-layers of 8 slices, [L p / P, L (p + 1) / P)
+/// of the L layers, and the 3 slices around them, and sparsifies them; a scan's Otsu statistics, the ranges and
 /// the block counts are joined, the topology of every piece's leaves gives the plan, and the
 /// leaves and tiles around this piece's blocks come from the pieces that made them.
 /// @throw InputError as loadVolume, on every piece, and for an INPUT isDensePieceInput refuses.
 DensePiece loadDensePiece(const VolumeRequest& request, const PieceComm& comm,
     openvdb::util::NullInterrupter* interrupter = nullptr);
 
-/// Whether loadDensePiece reads @a input: a .raw scan, field:NAME or formula:EXPR.
+/// Whether loadDensePiece reads @a input: a scan, field:NAME or formula:EXPR.
 bool isDensePieceInput(const std::string& input);
 
 /// A muParser field f(x, y, z) on [lo, hi]^3, default isovalue 0; thread safe (one parser per
