@@ -7,19 +7,25 @@ Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb -
 raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
 field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 32^3 with
 --hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic),
-bad_input, interrupt.
+scans with headers written here from the data's raw scans by nibabel, tifffile and pydicom
+(SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt.
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
 import glob
+import gzip
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
 
+import numpy as np
+
 TIMINGS = ("timings_ms", "ranks")
+SCANS = ("nifti", "nifti_gz", "nrrd", "nhdr_gz", "tiff", "tiff_folder", "dicom")
 
 
 def run(cmd, **kw):
@@ -179,6 +185,97 @@ def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
     print(f"np {args.np}: {name}: byte-identical PLY{' files' if hidden else ''}, equal summary")
 
 
+def raw_xyz(data, name, dtype):
+    """A raw scan of ../shared/data as an x, y, z array (the file is x fastest)."""
+    x, y, z = (int(v) for v in re.search(r"_(\d+)x(\d+)x(\d+)_", name).groups())
+    return np.fromfile(os.path.join(data, name), dtype=dtype).reshape(z, y, x).transpose(2, 1, 0)
+
+
+# An oblique index-to-world affine (column vectors), so that a rank's transform is checked too.
+AFFINE = np.array([[0.9, 0.1, 0.0, -5.0], [0.0, 1.1, 0.05, 3.0], [0.0, 0.0, 1.3, 7.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def write_nrrd(path, values, data_file=None, gzip_data=False):
+    """A big-endian NRRD0004 (teem's "NRRD file format"), data attached or in @data_file."""
+    types = {np.dtype(np.uint8): "uint8", np.dtype(np.int16): "short", np.dtype(np.float32): "float"}
+    vec = lambda v: "(" + ",".join(repr(float(c)) for c in v) + ")"  # noqa: E731
+    head = ["NRRD0004", f"type: {types[values.dtype]}", "dimension: 3", "sizes: " + " ".join(map(str, values.shape)),
+            "encoding: " + ("gzip" if gzip_data else "raw"), "endian: big", "space: left-posterior-superior",
+            "space directions: " + " ".join(vec(AFFINE[:3, a]) for a in range(3)), "space origin: " + vec(AFFINE[:3, 3])]
+    data = values.transpose(2, 1, 0).astype(values.dtype.newbyteorder(">")).tobytes()
+    data = gzip.compress(data) if gzip_data else data
+    if data_file:
+        open(os.path.join(os.path.dirname(path), data_file), "wb").write(data)
+        open(path, "w").write("\n".join(head + [f"data file: {data_file}"]) + "\n")
+    else:
+        open(path, "wb").write(("\n".join(head) + "\n\n").encode() + data)
+
+
+def write_dicom(folder, values, slope, intercept):
+    """One CT series, one file per slice under names in no order (pydicom)."""
+    from pydicom.dataset import FileDataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+    os.makedirs(folder, exist_ok=True)
+    series = generate_uid()
+    for k in range(values.shape[2]):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = CTImageStorage, generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        path = os.path.join(folder, f"IM{(k * 7919) % 1000:03d}{k}")
+        ds = FileDataset(path, {}, file_meta=meta, preamble=b"\0" * 128)
+        ds.SOPClassUID, ds.SOPInstanceUID = CTImageStorage, meta.MediaStorageSOPInstanceUID
+        ds.StudyInstanceUID, ds.SeriesInstanceUID, ds.Modality, ds.InstanceNumber = "1.2.3.4", series, "CT", k + 1
+        ds.Rows, ds.Columns = values.shape[1], values.shape[0]
+        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+        ds.ImagePositionPatient = [float(v) for v in AFFINE[:3, 3] + k * AFFINE[:3, 2]]
+        ds.ImageOrientationPatient = [float(v) for v in (*(AFFINE[:3, 0] / np.linalg.norm(AFFINE[:3, 0])),
+                                                         *(AFFINE[:3, 1] / np.linalg.norm(AFFINE[:3, 1])))]
+        ds.PixelSpacing = [float(np.linalg.norm(AFFINE[:3, 1])), float(np.linalg.norm(AFFINE[:3, 0]))]
+        ds.RescaleSlope, ds.RescaleIntercept = slope, intercept
+        ds.PixelData = np.ascontiguousarray(values[:, :, k].T).astype("<i2").tobytes()
+        ds.is_little_endian, ds.is_implicit_VR = True, False
+        ds.save_as(path)
+
+
+def write_scan(args, case):
+    """The input of a SCANS case, written in its work folder; its path and dims."""
+    work = os.path.join(args.work, f"{case}_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    if case in ("nifti", "nifti_gz"):  # an MRI, int16 scaled by 0.5 + 2 (scl_slope, scl_inter)
+        import nibabel
+        values = raw_xyz(args.data, "brainsmall_128x128x84_uint8.raw", np.uint8).astype(np.int16)
+        image = nibabel.Nifti1Image(values, AFFINE)
+        image.header.set_slope_inter(0.5, 2.0)
+        path = os.path.join(work, "brain.nii" + (".gz" if case == "nifti_gz" else ""))
+        nibabel.save(image, path)
+    elif case == "nrrd":  # attached, big-endian int16
+        values = raw_xyz(args.data, "t1_kmeans_128x128x62_int16.raw", np.int16)
+        path = os.path.join(work, "t1.nrrd")
+        write_nrrd(path, values)
+    elif case == "nhdr_gz":  # detached gzip data: every rank decompresses up to its slices
+        values = raw_xyz(args.data, "brainsmall_128x128x84_uint8.raw", np.uint8)
+        path = os.path.join(work, "brain.nhdr")
+        write_nrrd(path, values, data_file="brain.raw.gz", gzip_data=True)
+    elif case == "tiff":  # one multi-page float32 file
+        import tifffile
+        values = raw_xyz(args.data, "skull_64x64x64_float32.raw", np.float32)
+        path = os.path.join(work, "skull.tif")
+        tifffile.imwrite(path, np.ascontiguousarray(values.transpose(2, 1, 0)))
+    elif case == "tiff_folder":  # one file per slice, numbered
+        import tifffile
+        values = raw_xyz(args.data, "fuel_64x64x64_uint8.raw", np.uint8)
+        path = os.path.join(work, "fuel")
+        os.makedirs(path, exist_ok=True)
+        for k in range(values.shape[2]):
+            tifffile.imwrite(os.path.join(path, f"slice_{k:03d}.tif"), np.ascontiguousarray(values[:, :, k].T))
+    else:  # dicom: a CT series, int16 with a rescale
+        values = raw_xyz(args.data, "stent_128x128x256_int16.raw", np.int16)[:, :, 60:130]
+        path = os.path.join(work, "stent")
+        write_dicom(path, values, 0.5, -100.0)
+    return path, values.shape
+
+
 def bad_input(args):
     work = os.path.join(args.work, f"bad_np{args.np}")
     os.makedirs(work, exist_ok=True)
@@ -202,6 +299,18 @@ def bad_input(args):
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--isovalue", "1e9"],
         [os.path.join(args.data, "fuel_64x64x64_uint8.raw"), "--dims", "64,64,63"],
     ]
+    # Scans with headers: a gzip stream cut short, which only the ranks reading its end find out;
+    # a detached NRRD whose data file is missing.
+    import nibabel
+    values = raw_xyz(args.data, "fuel_64x64x64_uint8.raw", np.uint8)
+    full = os.path.join(work, "full.nii.gz")
+    nibabel.save(nibabel.Nifti1Image(values, np.eye(4)), full)
+    cut = os.path.join(work, "cut.nii.gz")
+    open(cut, "wb").write(open(full, "rb").read()[:int(os.path.getsize(full) * 0.7)])
+    detached = os.path.join(work, "detached.nhdr")
+    write_nrrd(detached, values, data_file="gone.raw")
+    os.remove(os.path.join(work, "gone.raw"))
+    inputs += [[cut], [detached]]
     # The disk takes 100 kB of the 3.7 MB PLY (a file size limit: the same EFBIG as a quota),
     # on the ranks only: the launcher writes its own files.
     small_disk = ["prlimit", "--fsize=100000"]
@@ -322,6 +431,9 @@ def main():
     elif args.case == "formula":
         compare(args, "formula", "formula:x*x+y*y+z*z-0.5+0.1*sin(9*x)", ["--resolution", "40", "--method", "cubic"],
                 dims=(40, 40, 40))
+    elif args.case in SCANS:
+        path, dims = write_scan(args, args.case)
+        compare(args, args.case, path, ["--method", "cubic"] if args.case == "tiff" else [], dims=dims)
     elif args.case == "bad_input":
         bad_input(args)
     elif args.case == "interrupt":
