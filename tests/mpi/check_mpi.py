@@ -195,14 +195,14 @@ def raw_xyz(data, name, dtype):
 AFFINE = np.array([[0.9, 0.1, 0.0, -5.0], [0.0, 1.1, 0.05, 3.0], [0.0, 0.0, 1.3, 7.0], [0.0, 0.0, 0.0, 1.0]])
 
 
-def write_nrrd(path, values, data_file=None, gzip_data=False):
-    """A big-endian NRRD0004 (teem's "NRRD file format"), data attached or in @data_file."""
+def write_nrrd(path, values, data_file=None, gzip_data=False, endian="big"):
+    """A NRRD0004 (teem's "NRRD file format"), data attached or in @data_file."""
     types = {np.dtype(np.uint8): "uint8", np.dtype(np.int16): "short", np.dtype(np.float32): "float"}
     vec = lambda v: "(" + ",".join(repr(float(c)) for c in v) + ")"  # noqa: E731
     head = ["NRRD0004", f"type: {types[values.dtype]}", "dimension: 3", "sizes: " + " ".join(map(str, values.shape)),
-            "encoding: " + ("gzip" if gzip_data else "raw"), "endian: big", "space: left-posterior-superior",
+            "encoding: " + ("gzip" if gzip_data else "raw"), f"endian: {endian}", "space: left-posterior-superior",
             "space directions: " + " ".join(vec(AFFINE[:3, a]) for a in range(3)), "space origin: " + vec(AFFINE[:3, 3])]
-    data = values.transpose(2, 1, 0).astype(values.dtype.newbyteorder(">")).tobytes()
+    data = values.transpose(2, 1, 0).astype(values.dtype.newbyteorder(">" if endian == "big" else "<")).tobytes()
     data = gzip.compress(data) if gzip_data else data
     if data_file:
         open(os.path.join(os.path.dirname(path), data_file), "wb").write(data)
@@ -242,18 +242,18 @@ def write_scan(args, case):
     """The input of a SCANS case, written in its work folder; its path and dims."""
     work = os.path.join(args.work, f"{case}_np{args.np}")
     os.makedirs(work, exist_ok=True)
-    if case in ("nifti", "nifti_gz"):  # an MRI, int16 scaled by 0.5 + 2 (scl_slope, scl_inter)
-        import nibabel
+    if case in ("nifti", "nifti_gz"):  # an MRI, int16: plain (read as a raw array), or gzip and
+        import nibabel                   # scaled by 0.5 + 2 (scl_slope, scl_inter: read by slices)
         values = raw_xyz(args.data, "brainsmall_128x128x84_uint8.raw", np.uint8).astype(np.int16)
         image = nibabel.Nifti1Image(values, AFFINE)
-        image.header.set_slope_inter(0.5, 2.0)
+        image.header.set_slope_inter(*((0.5, 2.0) if case == "nifti_gz" else (1.0, 0.0)))
         path = os.path.join(work, "brain.nii" + (".gz" if case == "nifti_gz" else ""))
         nibabel.save(image, path)
-    elif case == "nrrd":  # attached, big-endian int16
+    elif case == "nrrd":  # attached, little-endian int16: a raw array
         values = raw_xyz(args.data, "t1_kmeans_128x128x62_int16.raw", np.int16)
         path = os.path.join(work, "t1.nrrd")
-        write_nrrd(path, values)
-    elif case == "nhdr_gz":  # detached gzip data: every rank decompresses up to its slices
+        write_nrrd(path, values, endian="little")
+    elif case == "nhdr_gz":  # detached big-endian gzip data: every rank decompresses up to its slices
         values = raw_xyz(args.data, "brainsmall_128x128x84_uint8.raw", np.uint8)
         path = os.path.join(work, "brain.nhdr")
         write_nrrd(path, values, data_file="brain.raw.gz", gzip_data=True)

@@ -55,8 +55,12 @@ public:
             mSlope = image.scl_slope;
             mInter = image.scl_inter;
         }
-        mFile = znzopen(path.c_str(), "rb", nifti_is_gzfile(path.c_str()));
+        const bool gzip = nifti_is_gzfile(path.c_str());
+        mFile = znzopen(path.c_str(), "rb", gzip);
         if (znz_isnull(mFile)) throw InputError("cannot open '" + path + "'");
+        const bool nativeOrder = sampleBytes(type) == 1 || mBigEndian == (__BYTE_ORDER__ == __ORDER_BIG_ENDIAN__);
+        if (!gzip && isRawArrayType(type) && nativeOrder && mSlope == 1.0 && mInter == 0.0)
+            mRaw = std::make_unique<RawSlabReader>(path, dims, type, std::uint64_t(mOffset));
     }
     ~NiftiSlices() override { znzclose(mFile); }
     NiftiSlices(const NiftiSlices&) = delete;
@@ -64,6 +68,7 @@ public:
 
     double slope() const { return mSlope; }
     double inter() const { return mInter; }
+    const RawSlabReader* rawArray() const override { return mRaw.get(); }
 
     void read(int z0, int count, float* out) override
     {
@@ -91,6 +96,7 @@ private:
     double mSlope = 1.0, mInter = 0.0;
     znzFile mFile = nullptr;
     std::vector<char> mBuffer;
+    std::unique_ptr<RawSlabReader> mRaw;
 };
 
 /// 1 or 2 from the header's first bytes (nifti_image::nifti_type says 1 for both).

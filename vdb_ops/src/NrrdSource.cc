@@ -90,11 +90,12 @@ private:
 };
 
 /// Raw or gzip data of one data file, read slice by slice from where the header ends (teem
-/// leaves that file open at the data: keepNrrdDataFileOpen).
+/// leaves that file open at the data: keepNrrdDataFileOpen). Raw data in this machine's byte
+/// order is also a rawArray of @a dataPath (the header itself when the data are attached).
 class NrrdStreamSlices : public SliceSource {
 public:
-    NrrdStreamSlices(const std::string& path, std::FILE* file, bool gzip, bool bigEndian, SampleType type, Coord size,
-        long byteSkip)
+    NrrdStreamSlices(const std::string& path, const std::string& dataPath, std::FILE* file, bool gzip, bool bigEndian,
+        SampleType type, Coord size, long byteSkip)
         : mPath(path), mFile(file), mType(type), mBigEndian(bigEndian)
     {
         dims = size;
@@ -112,6 +113,9 @@ public:
                 throw InputError("cannot read the data of '" + path + "': " + std::to_string(bytes)
                     + " bytes of data needed, " + std::to_string(end - mStart) + " in the file");
             }
+            const bool nativeOrder = sampleBytes(type) == 1 || bigEndian == (__BYTE_ORDER__ == __ORDER_BIG_ENDIAN__);
+            if (isRawArrayType(type) && nativeOrder)
+                mRaw = std::make_unique<RawSlabReader>(dataPath, dims, type, std::uint64_t(mStart));
             return;
         }
         // zlib reads the gzip stream from the descriptor's offset: the stream starts where the
@@ -127,6 +131,7 @@ public:
     {
         if (mGz) gzclose(mGz);
     }
+    const RawSlabReader* rawArray() const override { return mRaw.get(); }
     NrrdStreamSlices(const NrrdStreamSlices&) = delete;
     NrrdStreamSlices& operator=(const NrrdStreamSlices&) = delete;
 
@@ -166,6 +171,7 @@ private:
     SampleType mType;
     bool mBigEndian;
     std::vector<char> mBuffer;
+    std::unique_ptr<RawSlabReader> mRaw;
 };
 
 /// A `data file:` pattern `FORMAT MIN MAX STEP [SUBDIM]` expanded, its FORMAT holding exactly
@@ -254,7 +260,8 @@ DensePiece readNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter
     fileSize(path);
     rejectRawFlags(request, "NRRD", false);
     // teem opens the data files itself and would wait forever on a FIFO: regular files only.
-    for (const std::string& file : nrrdDataFiles(path)) {
+    const std::vector<std::string> dataFiles = nrrdDataFiles(path);
+    for (const std::string& file : dataFiles) {
         std::error_code ec;
         if (!fs::is_regular_file(file, ec)) {
             throw InputError("'" + path + "' names the data file '" + file + "', which is "
@@ -304,10 +311,10 @@ DensePiece readNrrd(const VolumeRequest& request, openvdb::util::NullInterrupter
     const std::string encoding = io->encoding ? io->encoding->name : "raw";
     const std::string name = fs::path(path).stem().string();
     const std::string what = fs::path(path).filename().string() + ": NRRD " + toString(*type) + " (" + encoding + ")";
-    if (io->dataFile && (encoding == "raw" || encoding == "gzip")) {
+    if (io->dataFile && (encoding == "raw" || encoding == "gzip") && dataFiles.size() <= 1) {
         const Coord size(int(n.axis[0].size), int(n.axis[1].size), int(n.axis[2].size));
-        NrrdStreamSlices source(path, io->dataFile, encoding == "gzip", io->endian == airEndianBig, *type, size,
-            io->byteSkip);
+        NrrdStreamSlices source(path, dataFiles.empty() ? path : dataFiles[0], io->dataFile, encoding == "gzip",
+            io->endian == airEndianBig, *type, size, io->byteSkip);
         return load(source, {name, affine, geometry, what});
     }
     // teem allocates the whole volume before it decodes: refuse what cannot fit first.

@@ -35,8 +35,8 @@ const RawTypeInfo& rawType(const std::string& name)
 
 } // namespace
 
-RawSlabReader::RawSlabReader(const std::string& path, const Coord& dims, SampleType type)
-    : mPath(path), mDims(dims), mType(type), mFd(::open(path.c_str(), O_RDONLY | O_CLOEXEC))
+RawSlabReader::RawSlabReader(const std::string& path, const Coord& dims, SampleType type, std::uint64_t offset)
+    : mPath(path), mDims(dims), mType(type), mOffset(offset), mFd(::open(path.c_str(), O_RDONLY | O_CLOEXEC))
 {
     if (mFd < 0) throw InputError("cannot open '" + path + "': " + std::strerror(errno));
 }
@@ -47,7 +47,7 @@ void RawSlabReader::readSlices(int z0, int z1, char* out) const
 {
     const std::size_t slice = std::size_t(mDims.x()) * mDims.y() * sampleBytes(mType);
     std::size_t left = slice * std::size_t(z1 - z0);
-    off_t at = off_t(slice * std::size_t(z0));
+    off_t at = off_t(mOffset + slice * std::size_t(z0));
     while (left > 0) {
         const ssize_t got = ::pread(mFd, out, left, at);
         if (got < 0 && errno == EINTR) continue;
@@ -124,11 +124,10 @@ RawScan rawScan(const VolumeRequest& request)
         &type, spacing};
 }
 
-/// The grid's name and transform, the source and the description of a raw scan's volume.
-void finishRaw(LoadedVolume& volume, const RawScan& scan, const std::string& isovalueSource)
+/// The grid's name and transform and the description of a raw scan's volume.
+void finishRaw(LoadedVolume& volume, const RawScan& scan)
 {
     const openvdb::Vec3d& spacing = scan.spacing;
-    volume.isovalueSource = isovalueSource;
     volume.grid->setName(scan.name);
     auto transform = openvdb::math::Transform::createLinearTransform(1.0);
     transform->preScale(spacing);
@@ -159,17 +158,25 @@ std::pair<float, std::string> rawIsovalue(const VolumeRequest& request, SampleTy
     return {isovalue, source};
 }
 
+LoadedVolume loadRawArray(const RawSlabReader& reader, const VolumeRequest& request,
+    openvdb::util::NullInterrupter* interrupter)
+{
+    const int nz = reader.dims().z();
+    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
+    const auto [isovalue, source] = rawIsovalue(request, reader.type(),
+        [&](const Range* range) { return rawStats(reader, 0, nz, range); });
+    LoadedVolume volume = denseVolume(
+        sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
+    volume.isovalueSource = source;
+    return volume;
+}
+
 LoadedVolume loadRaw(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
     const RawScan scan = rawScan(request);
     const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
-    const int nz = scan.dims.z();
-    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
-    const auto [isovalue, source] = rawIsovalue(request, scan.type->type,
-        [&](const Range* range) { return rawStats(reader, 0, nz, range); });
-    LoadedVolume volume = denseVolume(
-        sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
-    finishRaw(volume, scan, source);
+    LoadedVolume volume = loadRawArray(reader, request, interrupter);
+    finishRaw(volume, scan);
     return volume;
 }
 
@@ -181,18 +188,17 @@ using Words = PieceComm::Words;
 
 } // namespace
 
-DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+DensePiece loadRawArrayPiece(const RawSlabReader& reader, const VolumeRequest& request, const PieceComm& comm,
+    openvdb::util::NullInterrupter* interrupter)
 {
-    const RawScan scan = rawScan(request);
-    const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
-    const Coord dims = scan.dims;
+    const Coord dims = reader.dims();
     checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
     const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + kBlock - 1) / kBlock;
     const int l0 = firstLayerOf(layers, piece, pieces), l1 = firstLayerOf(layers, piece + 1, pieces);
     const int z0 = std::min(l0 * kBlock, dims.z()), z1 = std::min(l1 * kBlock, dims.z());
 
     // Otsu's statistics: each piece its slices, joined in piece order.
-    const auto [isovalue, source] = rawIsovalue(request, scan.type->type, [&](const Range* range) {
+    const auto [isovalue, source] = rawIsovalue(request, reader.type(), [&](const Range* range) {
         RawStats part;
         comm.agree([&] { part = rawStats(reader, z0, z1, range); });
         Words words = {bitsOf(part.range.min), bitsOf(part.range.max)};
@@ -210,7 +216,16 @@ DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, ope
     const auto iso = isovalue; // a structured binding cannot be captured before C++20 (clang)
     comm.agree([&] { sparse = sparsifyRaw(reader, l0, l1, request.keep, iso, interrupter); });
     DensePiece out = spreadLayers(std::move(sparse), dims, isovalue, comm);
-    finishRaw(out.volume, scan, source);
+    out.volume.isovalueSource = source;
+    return out;
+}
+
+DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
+{
+    const RawScan scan = rawScan(request);
+    const RawSlabReader reader(scan.path, scan.dims, scan.type->type);
+    DensePiece out = loadRawArrayPiece(reader, request, comm, interrupter);
+    finishRaw(out.volume, scan);
     return out;
 }
 

@@ -187,7 +187,8 @@ LoadedVolume loadScan(SliceSource& source, const VolumeRequest& request, const S
     openvdb::util::NullInterrupter* interrupter)
 {
     const openvdb::math::Transform::Ptr transform = scanTransform(request, header, source.dims);
-    LoadedVolume volume = loadDense(source, request, interrupter);
+    const RawSlabReader* raw = source.rawArray();
+    LoadedVolume volume = raw ? loadRawArray(*raw, request, interrupter) : loadDense(source, request, interrupter);
     nameScan(volume, header, transform);
     return volume;
 }
@@ -196,6 +197,11 @@ DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, cons
     const PieceComm& comm, openvdb::util::NullInterrupter* interrupter)
 {
     const openvdb::math::Transform::Ptr transform = scanTransform(request, header, source.dims);
+    if (const RawSlabReader* raw = source.rawArray()) {
+        DensePiece piece = loadRawArrayPiece(*raw, request, comm, interrupter);
+        nameScan(piece.volume, header, transform);
+        return piece;
+    }
     checkLayersFit(source, request.input);
     const int layers = (source.dims.z() + kBlock - 1) / kBlock;
     const int l0 = firstLayerOf(layers, comm.rank(), comm.size()), l1 = firstLayerOf(layers, comm.rank() + 1, comm.size());

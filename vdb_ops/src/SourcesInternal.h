@@ -31,11 +31,17 @@ constexpr int kHalo = 3;  // widest stencil reach beyond an edge (SPEC §2)
 /// Shortest decimal text of @a v, for messages.
 std::string fmt(double v);
 
+class RawSlabReader;
+
 /// A dense X*Y*Z array read slice by slice; out[x + X*(y + Y*(z - z0))].
 class SliceSource {
 public:
     virtual ~SliceSource() = default;
     virtual void read(int z0, int count, float* out) = 0;
+    /// The samples as a raw scan's array in the file, where they are stored as one
+    /// (uncompressed, in this machine's byte order, unscaled, a type RawSlabReader reads):
+    /// then loadScan reads them as a raw scan, in parallel. Else nullptr.
+    virtual const RawSlabReader* rawArray() const { return nullptr; }
     Coord dims;
 };
 
@@ -143,13 +149,14 @@ const char* toString(SampleType type); ///< "uint8", "int16", "float32", ...
 void decodeSamples(const char* bytes, std::size_t n, SampleType type, bool bigEndian, double slope,
     double inter, float* out);
 
-/// A headerless raw scan (x fastest, little-endian samples) read by z-slabs with positioned
-/// reads (pread): no shared file position, so any thread, or any MPI rank, reads any slabs at
-/// any time (RawSource.cc). Types: UInt8, UInt16, Int16, Float32, Float64.
+/// A raw array (x fastest, little-endian samples) from byte @a offset of a file (a headerless
+/// raw scan; the data of a NIfTI or NRRD file) read by z-slabs with positioned reads (pread):
+/// no shared file position, so any thread, or any MPI rank, reads any slabs at any time
+/// (RawSource.cc). Types: UInt8, UInt16, Int16, Float32, Float64 (isRawArrayType).
 class RawSlabReader {
 public:
     /// @throw InputError if the file cannot be opened.
-    RawSlabReader(const std::string& path, const Coord& dims, SampleType type);
+    RawSlabReader(const std::string& path, const Coord& dims, SampleType type, std::uint64_t offset = 0);
     ~RawSlabReader();
     RawSlabReader(const RawSlabReader&) = delete;
     RawSlabReader& operator=(const RawSlabReader&) = delete;
@@ -164,8 +171,21 @@ private:
     std::string mPath;
     Coord mDims;
     SampleType mType;
+    std::uint64_t mOffset;
     int mFd = -1;
 };
+
+/// Whether RawSlabReader reads samples of @a type.
+inline bool isRawArrayType(SampleType type)
+{
+    return type == SampleType::UInt8 || type == SampleType::UInt16 || type == SampleType::Int16
+        || type == SampleType::Float32 || type == SampleType::Float64;
+}
+
+/// A raw array's isovalue (given, else Otsu's starting value) and sparse volume, in parallel,
+/// unnamed (loadRaw; loadScan of a SliceSource::rawArray).
+LoadedVolume loadRawArray(const RawSlabReader& reader, const VolumeRequest& request,
+    openvdb::util::NullInterrupter* interrupter);
 
 /// checkLayersFit for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw: one
 /// per thread in use, threads_internal::threadsInUse(), which counts -j).
@@ -270,6 +290,9 @@ DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue
 DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, const ScanHeader& header,
     const PieceComm& comm, openvdb::util::NullInterrupter* interrupter);
 
+/// loadRawArray by pieces.
+DensePiece loadRawArrayPiece(const RawSlabReader& reader, const VolumeRequest& request, const PieceComm& comm,
+    openvdb::util::NullInterrupter* interrupter);
 /// loadRaw and loadField by pieces.
 DensePiece loadRawPiece(const VolumeRequest& request, const PieceComm& comm, openvdb::util::NullInterrupter* interrupter);
 DensePiece loadFieldPiece(const FieldInput& input, const VolumeRequest& request, const PieceComm& comm,
