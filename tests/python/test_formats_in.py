@@ -110,6 +110,31 @@ def test_nifti_is_the_raw_mesh_moved_by_its_affine(isouq_cli, tmp_path, referenc
     assert summary["description"].startswith(f"scan{suffix}: NIfTI-{kind[-1]} {np.dtype(dtype).name}")
 
 
+@pytest.mark.parametrize("suffix, slope, inter", [(".nii", 1.0, 0.0), (".nii", 0.5, -10.0), (".nii.gz", 1.0, 0.0),
+                                                  (".nii.gz", -0.25, 3.0)])
+def test_nifti_default_isovalue_is_otsu_of_its_values(isouq_cli, tmp_path, data_dir, suffix, slope, inter):
+    """Otsu's default isovalue of a NIfTI against scikit-image's threshold_otsu of the same scaled
+    values (SPEC §8): a plain unscaled .nii is read as a raw array (counts per value), the others
+    slice by slice (a 256-bin histogram of the decoded floats); unscaled, both must give the raw
+    scan's own isovalue exactly."""
+    nib = pytest.importorskip("nibabel")
+    filters = pytest.importorskip("skimage.filters")
+    name = "engine_256x256x128_uint8.raw"
+    values = np.fromfile(data_dir / name, dtype=np.uint8).reshape(128, 256, 256).transpose(2, 1, 0)
+    image = nib.Nifti1Image(values, np.eye(4))
+    image.header.set_slope_inter(slope, inter)
+    path = tmp_path / f"engine{suffix}"
+    nib.save(image, path)
+    _, summary = mesh(isouq_cli, tmp_path, path, "nii", "--linear-only")
+    assert summary["isovalue_source"].startswith("Otsu")
+    scaled = (values.astype(np.float64) * slope + inter).astype(np.float32)  # as isouq decodes
+    expected = filters.threshold_otsu(scaled, nbins=256)
+    assert abs(summary["isovalue"] - expected) <= float(scaled.max() - scaled.min()) / 256  # one bin
+    if slope == 1.0 and inter == 0.0:
+        _, raw = mesh(isouq_cli, tmp_path, data_dir / name, "raw", "--linear-only")
+        assert summary["isovalue"] == raw["isovalue"]
+
+
 def test_nifti_scaling_is_applied(isouq_cli, tmp_path, reference):
     """Stored = 2 (value + 100) as int16 with scl_slope 0.5, scl_inter -100: isouq meshes the value."""
     nib = pytest.importorskip("nibabel")

@@ -5,6 +5,9 @@
 
 #include "isouq/Bricks.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -119,6 +122,15 @@ void decode(const char* bytes, std::size_t n, bool swap, double slope, double in
 void decodeSamples(const char* bytes, std::size_t n, SampleType type, bool bigEndian, double slope,
     double inter, float* out)
 {
+    // Slices of a large scan in parallel pieces (each sample on its own: any split gives the same floats).
+    constexpr std::size_t kPiece = std::size_t(1) << 16;
+    if (n > kPiece) {
+        const std::size_t bytesPer = sampleBytes(type);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, kPiece), [&](const auto& r) {
+            decodeSamples(bytes + r.begin() * bytesPer, r.size(), type, bigEndian, slope, inter, out + r.begin());
+        });
+        return;
+    }
     const bool swap = bigEndian != (__BYTE_ORDER__ == __ORDER_BIG_ENDIAN__);
     switch (type) {
     case SampleType::UInt8: return decode<std::uint8_t>(bytes, n, swap, slope, inter, out);

@@ -52,16 +52,45 @@ SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histog
 {
     const int slab = kBlock;
     std::vector<float> buffer(std::size_t(source.dims.x()) * source.dims.y() * slab);
-    SourceStats stats;
+    // Each thread its own range and counts, joined at the end: min, max and integer sums do not
+    // depend on the order.
+    tbb::enumerable_thread_specific<SourceStats> parts;
     for (int z = z0; z < z1; z += slab) {
         const int count = std::min(slab, z1 - z);
         source.read(z, count, buffer.data());
         const std::size_t n = std::size_t(source.dims.x()) * source.dims.y() * count;
-        for (std::size_t i = 0; i < n; ++i) {
-            if (!std::isfinite(buffer[i])) continue;
-            if (!histogramRange) stats.range.add(buffer[i]);
-            else ++stats.histogram[histogramBin(buffer[i], histogramRange->min, histogramRange->max)];
-        }
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, std::size_t(1) << 16), [&](const auto& r) {
+            SourceStats& part = parts.local();
+            const float* v = buffer.data();
+            if (!histogramRange) { // NaN fails both tests; infinities fail the second of each
+                constexpr float inf = std::numeric_limits<float>::infinity();
+                float lo = inf, hi = -inf;
+                for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                    if (v[i] < lo && v[i] > -inf) lo = v[i];
+                    if (v[i] > hi && v[i] < inf) hi = v[i];
+                }
+                if (lo <= hi) part.range.add(lo), part.range.add(hi);
+                return;
+            }
+            // A scan's samples take few distinct values (integers, scaled): each value's bin
+            // is remembered, keyed by its bits, so the division runs once per value, not per sample.
+            std::array<std::uint32_t, 4096> key;
+            std::array<std::uint8_t, 4096> bin{};
+            key.fill(0xffffffffu); // a NaN's bits: no finite sample has them
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (!std::isfinite(v[i])) continue;
+                std::uint32_t bits;
+                std::memcpy(&bits, &v[i], sizeof bits);
+                const std::size_t h = (bits ^ (bits >> 13) ^ (bits >> 23)) & 4095u;
+                if (key[h] != bits) key[h] = bits, bin[h] = std::uint8_t(histogramBin(v[i], histogramRange->min, histogramRange->max));
+                ++part.histogram[bin[h]];
+            }
+        });
+    }
+    SourceStats stats;
+    for (const SourceStats& part : parts) {
+        stats.range.add(part.range);
+        for (std::size_t b = 0; b < stats.histogram.size(); ++b) stats.histogram[b] += part.histogram[b];
     }
     return stats;
 }
