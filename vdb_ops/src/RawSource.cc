@@ -250,45 +250,58 @@ DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue
         whole.blocks += std::size_t(w[2]), whole.kept += std::size_t(w[3]);
     }
     constexpr std::size_t kMaskWords = LeafT::NodeMaskType::WORD_COUNT;
-    Words leaves;
-    for (auto leaf = sparse.tree->cbeginLeaf(); leaf; ++leaf) {
-        const Coord o = leaf->origin();
-        leaves.insert(leaves.end(), {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
-        for (std::size_t w = 0; w < kMaskWords; ++w) leaves.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
-    }
-    openvdb::MaskTree topology;
-    for (const Words& w : comm.allgather(leaves))
-        for (std::size_t i = 0; i < w.size(); i += 3 + kMaskWords) {
-            auto* leaf = topology.touchLeaf(Coord(int(w[i]), int(w[i + 1]), int(w[i + 2])));
-            for (std::size_t k = 0; k < kMaskWords; ++k) leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(k)) = w[i + 3 + k];
+    std::shared_ptr<BrickPlan> plan;
+    {
+        Words leaves;
+        for (auto leaf = sparse.tree->cbeginLeaf(); leaf; ++leaf) {
+            const Coord o = leaf->origin();
+            leaves.insert(leaves.end(), {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
+            for (std::size_t w = 0; w < kMaskWords; ++w) leaves.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
         }
-    auto plan = std::make_shared<BrickPlan>(topology, pieces);
+        openvdb::MaskTree topology;
+        for (const Words& w : comm.allgather(leaves))
+            for (std::size_t i = 0; i < w.size(); i += 3 + kMaskWords) {
+                auto* leaf = topology.touchLeaf(Coord(int(w[i]), int(w[i + 1]), int(w[i + 2])));
+                for (std::size_t k = 0; k < kMaskWords; ++k) leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(k)) = w[i + 3 + k];
+            }
+        plan = std::make_shared<BrickPlan>(topology, pieces);
+    }
     out.plan = plan;
 
     // The blocks this piece's stencils reach: its own and those one block around them, inside
-    // the data; each from the piece whose layers hold it.
+    // the data, marked in a bit per block and requested in Coord order (x, then y, then z) from
+    // the piece whose layers hold each.
     const Coord blockCount((dims.x() + kBlock - 1) / kBlock, (dims.y() + kBlock - 1) / kBlock, layers);
-    std::vector<Coord> wanted;
-    for (std::size_t b = plan->begin(piece); b < plan->end(piece); ++b)
-        for (int d = 0; d < 27; ++d) {
-            const Coord o = plan->origin(b).offsetBy(kBlock * (d % 3 - 1), kBlock * (d / 3 % 3 - 1), kBlock * (d / 9 - 1));
-            bool inside = true;
-            for (int a = 0; a < 3; ++a) inside = inside && o[a] >= 0 && o[a] < kBlock * blockCount[a];
-            if (inside) wanted.push_back(o);
-        }
-    std::sort(wanted.begin(), wanted.end());
-    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
-    std::vector<Words> requests(static_cast<std::size_t>(pieces));
-    for (const Coord& o : wanted) {
-        const int layer = o.z() / kBlock;
-        int owner = 0;
-        while (owner + 1 < pieces && firstLayerOf(layers, owner + 1, pieces) <= layer) ++owner;
-        requests[std::size_t(owner)].insert(requests[std::size_t(owner)].end(),
-            {std::uint64_t(o.x()), std::uint64_t(o.y()), std::uint64_t(o.z())});
+    const auto bitOf = [&](int bx, int by, int bz) {
+        return (std::size_t(bx) * std::size_t(blockCount.y()) + std::size_t(by)) * std::size_t(blockCount.z()) + std::size_t(bz);
+    };
+    std::vector<bool> wanted(std::size_t(blockCount.x()) * std::size_t(blockCount.y()) * std::size_t(blockCount.z()));
+    for (std::size_t b = plan->begin(piece); b < plan->end(piece); ++b) {
+        const Coord& o = plan->origin(b);
+        const Coord c(o.x() / kBlock, o.y() / kBlock, o.z() / kBlock);
+        for (int dx = std::max(c.x() - 1, 0); dx <= std::min(c.x() + 1, blockCount.x() - 1); ++dx)
+            for (int dy = std::max(c.y() - 1, 0); dy <= std::min(c.y() + 1, blockCount.y() - 1); ++dy)
+                for (int dz = std::max(c.z() - 1, 0); dz <= std::min(c.z() + 1, blockCount.z() - 1); ++dz)
+                    wanted[bitOf(dx, dy, dz)] = true;
     }
+    std::vector<int> ownerOfLayer(std::size_t(layers), 0);
+    for (int owner = 1; owner < pieces; ++owner)
+        for (int l = firstLayerOf(layers, owner, pieces); l < layers; ++l) ownerOfLayer[std::size_t(l)] = owner;
+    std::vector<Words> requests(static_cast<std::size_t>(pieces));
+    for (int bx = 0; bx < blockCount.x(); ++bx)
+        for (int by = 0; by < blockCount.y(); ++by)
+            for (int bz = 0; bz < blockCount.z(); ++bz)
+                if (wanted[bitOf(bx, by, bz)])
+                    requests[std::size_t(ownerOfLayer[std::size_t(bz)])].insert(
+                        requests[std::size_t(ownerOfLayer[std::size_t(bz)])].end(),
+                        {std::uint64_t(kBlock * bx), std::uint64_t(kBlock * by), std::uint64_t(kBlock * bz)});
+    std::vector<bool>().swap(wanted);
     const std::vector<Words> asked = comm.exchange(requests);
+    // Other pieces get copies (a leaf: 1, its mask, its 512 values; a tile: 0, its value); this
+    // piece's own requests take the leaves out of its tree below, uncopied.
     std::vector<Words> answers(static_cast<std::size_t>(pieces));
-    for (int r = 0; r < pieces; ++r) // a leaf: 1, its mask, its 512 values; a tile: 0, its value
+    for (int r = 0; r < pieces; ++r) {
+        if (r == piece) continue;
         for (std::size_t i = 0; i < asked[std::size_t(r)].size(); i += 3) {
             const Words& a = asked[std::size_t(r)];
             const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
@@ -303,13 +316,22 @@ DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue
                 answer.insert(answer.end(), {0, std::uint64_t(bitsOf(double(sparse.tree->getValue(o))))});
             }
         }
-    sparse.tree.reset();
-    const std::vector<Words> answered = comm.exchange(answers);
+    }
+    std::vector<Words> answered = comm.exchange(answers);
+    std::vector<Words>().swap(answers);
     whole.tree = std::make_shared<openvdb::FloatTree>(0.0f);
     {
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*whole.tree);
         for (int r = 0; r < pieces; ++r) {
             const Words& req = requests[std::size_t(r)];
+            if (r == piece) {
+                for (std::size_t i = 0; i < req.size(); i += 3) {
+                    const Coord o{int(req[i]), int(req[i + 1]), int(req[i + 2])};
+                    if (LeafT* leaf = sparse.tree->stealNode<LeafT>(o, 0.0f, false)) acc.addLeaf(leaf);
+                    else acc.addTile(/*level=*/1, o, sparse.tree->getValue(o), /*active=*/false);
+                }
+                continue;
+            }
             const Words& ans = answered[std::size_t(r)];
             std::size_t at = 0;
             for (std::size_t i = 0; i < req.size(); i += 3) {
@@ -326,8 +348,10 @@ DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue
                     at += 2;
                 }
             }
+            Words().swap(answered[std::size_t(r)]);
         }
     }
+    sparse.tree.reset();
     if (whole.range.min <= whole.range.max) whole.tree->root().setBackground(float(whole.range.min), false);
     out.volume = denseVolume(std::move(whole), dims, isovalue);
     return out;
