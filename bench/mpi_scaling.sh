@@ -5,6 +5,7 @@
 # speedup of -np 2 over -np 1 and the peak of a rank at -np 2 over one process's, and the load;
 # and each MPI run's stages from its summary (load, measure, mesh).
 #   bench/mpi_scaling.sh ISOUQ [WORKDIR] [RADIUS] [R]
+#   INPUT=scan.raw bench/mpi_scaling.sh ISOUQ [WORKDIR] - [R]   (any input instead of the sphere)
 # The input is a level-set sphere made with pyopenvdb (radius 400 voxels: 12 M active voxels,
 # 3.0 M vertices, 6.0 M triangles); every run writes the same PLY, which the script checks. Each
 # run writes a new file: the last run's is removed first, outside the timing (replacing a file
@@ -17,8 +18,8 @@ work=${2:-/tmp/isouq-mpi-bench}
 radius=${3:-400}
 repeats=${4:-3}
 mkdir -p "$work"
-input=$work/sphere$radius.vdb
-if [ ! -f "$input" ]; then
+input=${INPUT:-$work/sphere$radius.vdb}
+if [ -z "${INPUT:-}" ] && [ ! -f "$input" ]; then
   /usr/bin/python3 -c "
 import pyopenvdb as vdb
 g = vdb.createLevelSetSphere(radius=$radius.0, center=(0, 0, 0), voxelSize=1.0, halfWidth=3.0)
@@ -28,7 +29,7 @@ fi
 mpirun=(mpirun --oversubscribe --allow-run-as-root -q --bind-to none)
 median() { sort -g | awk '{v[NR] = $1} END {print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
 for flags in "" "--linear-only"; do
-  echo "== isouq mesh sphere$radius.vdb $flags -j 1, $repeats times ($(uptime | sed 's/.*load/load/'))"
+  echo "== isouq mesh $(basename "$input") $flags -j 1, $repeats times ($(uptime | sed 's/.*load/load/'))"
   log=$work/runs$flags.txt
   : > "$log"
   : > "$work/stages$flags.txt"
