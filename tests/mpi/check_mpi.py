@@ -211,8 +211,15 @@ def write_nrrd(path, values, data_file=None, gzip_data=False, endian="big"):
         open(path, "wb").write(("\n".join(head) + "\n\n").encode() + data)
 
 
+# DICOM's row and column directions are orthonormal (PS3.3 C.7.6.2.1.1): a rotation about z by
+# 30 degrees with spacings 0.9 and 1.1, slices 1.3 apart.
+C30, S30 = np.cos(np.pi / 6), np.sin(np.pi / 6)
+DICOM_AFFINE = np.array([[0.9 * C30, -1.1 * S30, 0.0, -5.0], [0.9 * S30, 1.1 * C30, 0.0, 3.0], [0.0, 0.0, 1.3, 7.0],
+                         [0.0, 0.0, 0.0, 1.0]])
+
+
 def write_dicom(folder, values, slope, intercept):
-    """One CT series, one file per slice under names in no order (pydicom)."""
+    """One CT series, one file per slice under names in no order (pydicom), DICOM_AFFINE."""
     from pydicom.dataset import FileDataset, FileMetaDataset
     from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
     os.makedirs(folder, exist_ok=True)
@@ -228,10 +235,10 @@ def write_dicom(folder, values, slope, intercept):
         ds.Rows, ds.Columns = values.shape[1], values.shape[0]
         ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
         ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
-        ds.ImagePositionPatient = [float(v) for v in AFFINE[:3, 3] + k * AFFINE[:3, 2]]
-        ds.ImageOrientationPatient = [float(v) for v in (*(AFFINE[:3, 0] / np.linalg.norm(AFFINE[:3, 0])),
-                                                         *(AFFINE[:3, 1] / np.linalg.norm(AFFINE[:3, 1])))]
-        ds.PixelSpacing = [float(np.linalg.norm(AFFINE[:3, 1])), float(np.linalg.norm(AFFINE[:3, 0]))]
+        ds.ImagePositionPatient = [float(v) for v in DICOM_AFFINE[:3, 3] + k * DICOM_AFFINE[:3, 2]]
+        ds.ImageOrientationPatient = [float(v) for v in (*(DICOM_AFFINE[:3, 0] / np.linalg.norm(DICOM_AFFINE[:3, 0])),
+                                                         *(DICOM_AFFINE[:3, 1] / np.linalg.norm(DICOM_AFFINE[:3, 1])))]
+        ds.PixelSpacing = [float(np.linalg.norm(DICOM_AFFINE[:3, 1])), float(np.linalg.norm(DICOM_AFFINE[:3, 0]))]
         ds.RescaleSlope, ds.RescaleIntercept = slope, intercept
         ds.PixelData = np.ascontiguousarray(values[:, :, k].T).astype("<i2").tobytes()
         ds.is_little_endian, ds.is_implicit_VR = True, False

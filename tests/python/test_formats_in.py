@@ -478,6 +478,14 @@ def test_bad_dicom_folders_give_one_line(isouq_cli, tmp_path):
     assert_one_error_line(isouq_cli, tmp_path, one, "holds one DICOM slice", args=())
     assert_one_error_line(isouq_cli, tmp_path, two, "--spacing applies to .raw files and TIFF",
                           args=("--spacing", "1,1,1"))
+    # Row and column directions 5.7 degrees from perpendicular: GDCM would put the identity in
+    # their place, so isouq refuses them (PS3.3 C.7.6.2.1.1).
+    skew = tmp_path / "skew"
+    for path in write_series(skew, shape=small, values=values):
+        ds = pydicom.dcmread(path)
+        ds.ImageOrientationPatient = [1.0, 0.0, 0.0, 0.0995037, 0.9950372, 0.0]
+        ds.save_as(path)
+    assert_one_error_line(isouq_cli, tmp_path, skew, "not orthonormal", args=())
 
 
 @pytest.mark.parametrize("name", ["CT_small.dcm", "MR_small_bigendian.dcm", "MR_small_RLE.dcm", "MR_small_implicit.dcm"])

@@ -5,11 +5,13 @@
 #include "Quarantine.h"
 #include "SourcesInternal.h"
 
+#include <gdcmDirectionCosines.h>
 #include <gdcmImage.h>
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTrace.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <optional>
@@ -63,6 +65,25 @@ void putHeader(Message& reply, const std::string& file)
     const double* spacing = image.GetSpacing(); // between columns (x), the second PixelSpacing value; rows
     reply.put(image.GetDimension(0)).put(image.GetDimension(1)).put(*type).put(spacing[0]).put(spacing[1]);
     const double* origin = image.GetOrigin();
+    // GDCM puts the identity in place of an Image Orientation (Patient) that is not two orthonormal
+    // directions (PS3.3 C.7.6.2.1.1): refuse it rather than mesh the scan in a made-up frame.
+    const gdcm::DataSet& data = reader.GetFile().GetDataSet();
+    const gdcm::Tag orientationTag(0x0020, 0x0037);
+    const gdcm::ByteValue* stored =
+        data.FindDataElement(orientationTag) ? data.GetDataElement(orientationTag).GetByteValue() : nullptr;
+    if (stored) { // a DS value: decimal strings separated by backslashes
+        const std::string text(stored->GetPointer(), stored->GetLength());
+        std::vector<double> v;
+        std::size_t at = 0;
+        for (std::size_t end; v.size() < 7 && at <= text.size(); at = end + 1) {
+            end = std::min(text.find('\\', at), text.size());
+            v.push_back(std::strtod(text.substr(at, end - at).c_str(), nullptr));
+        }
+        if (v.size() == 6 && !gdcm::DirectionCosines(v.data()).IsValid()) {
+            throw InputError("'" + file + "' has an Image Orientation (Patient) " + printedLine(text)
+                + " whose row and column directions are not orthonormal (PS3.3 C.7.6.2.1.1)");
+        }
+    }
     const double* cosines = image.GetDirectionCosines(); // row cosines, then column cosines
     for (int i = 0; i < 3; ++i) reply.put(origin[i]);
     for (int i = 0; i < 6; ++i) reply.put(cosines[i]);
