@@ -11,7 +11,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstring>
 
@@ -50,14 +49,6 @@ void StderrCapture::restore()
         ::close(mSaved);
         mSaved = -1;
     }
-}
-
-std::string printedLine(std::string_view raw)
-{
-    std::string text;
-    for (const char c : raw.substr(0, kPrintedChars)) text += std::iscntrl(static_cast<unsigned char>(c)) ? ' ' : c;
-    const std::size_t first = text.find_first_not_of(' ');
-    return first == std::string::npos ? std::string() : text.substr(first, text.find_last_not_of(' ') - first + 1);
 }
 
 std::size_t sampleBytes(SampleType type)

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cstdint>
 #include <cstdio>
 #include <functional>
@@ -49,9 +50,16 @@ public:
 std::uint64_t fileSize(const std::string& path);
 
 /// What a reader library printed (at most kPrintedChars of it) as one short line: control
-/// characters as blanks, trimmed at both ends.
+/// characters as blanks, trimmed at both ends. Inline: the GDCM module (GdcmServer.cc) has its
+/// own copy, as no host exports the library's internals to it.
 constexpr std::size_t kPrintedChars = 400;
-std::string printedLine(std::string_view raw);
+inline std::string printedLine(std::string_view raw)
+{
+    std::string text;
+    for (const char c : raw.substr(0, kPrintedChars)) text += std::iscntrl(static_cast<unsigned char>(c)) ? ' ' : c;
+    const std::size_t first = text.find_first_not_of(' ');
+    return first == std::string::npos ? std::string() : text.substr(first, text.find_last_not_of(' ') - first + 1);
+}
 
 /// Some reader libraries print to the standard error stream whatever they are told (nifticlib's
 /// "** ERROR: ...", libjpeg's messages from GDCM's trial decoders), which would make a second
