@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <regex>
+#include <unordered_map>
 
 namespace isouq {
 namespace sources_internal {
@@ -186,6 +187,87 @@ namespace {
 
 using Words = PieceComm::Words;
 
+/// Moves into @a into the blocks this piece asked for: requests[r] from piece r (x, y, z of each
+/// block), its own from @a from; @a asked[r] is what piece r asked this one for, answered from
+/// @a from, whose leaves go as soon as no piece needs them. Collective over @a comm.
+void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std::vector<Words>& requests,
+    const std::vector<Words>& asked, const PieceComm& comm)
+{
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+    constexpr std::size_t kMaskWords = LeafT::NodeMaskType::WORD_COUNT;
+    const int pieces = comm.size(), piece = comm.rank();
+    // This piece's own requests take the leaves out of its tree, uncopied.
+    openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(into);
+    const Words& own = requests[std::size_t(piece)];
+    for (std::size_t i = 0; i < own.size(); i += 3) {
+        const Coord o{int(own[i]), int(own[i + 1]), int(own[i + 2])};
+        if (LeafT* leaf = from.stealNode<LeafT>(o, 0.0f, false)) acc.addLeaf(leaf);
+        else acc.addTile(/*level=*/1, o, from.getValue(o), /*active=*/false);
+    }
+    // How many other pieces ask for each leaf left in the tree: it is freed when the last has it.
+    std::unordered_map<Coord, int> askedFor;
+    for (int r = 0; r < pieces; ++r)
+        for (std::size_t i = 0; r != piece && i < asked[std::size_t(r)].size(); i += 3) {
+            const Words& a = asked[std::size_t(r)];
+            const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
+            if (from.probeConstLeaf(o)) ++askedFor[o];
+        }
+    // The other pieces' blocks go in kRounds exchanges, each a kRounds-th of every list (a leaf:
+    // 1, its mask, its 512 values; a tile: 0, its value), so that what is in flight at once is a
+    // small part of what moves (issue 15: a rank's memory). Both ends split a list of n blocks
+    // at n i / kRounds, the sender's from what it was asked, the receiver's from its request.
+    constexpr std::size_t kRounds = 16;
+    const auto cut = [](std::size_t n, std::size_t i) { return n / 3 * i / kRounds * 3; };
+    for (std::size_t round = 0; round < kRounds; ++round) {
+        std::vector<Words> answers(static_cast<std::size_t>(pieces));
+        for (int r = 0; r < pieces; ++r) {
+            if (r == piece) continue;
+            const Words& a = asked[std::size_t(r)];
+            Words& answer = answers[std::size_t(r)];
+            for (std::size_t i = cut(a.size(), round); i < cut(a.size(), round + 1); i += 3) {
+                const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
+                const LeafT* leaf = from.probeConstLeaf(o);
+                if (!leaf) leaf = acc.probeConstLeaf(o); // one this piece also wants
+                if (leaf) {
+                    answer.push_back(1);
+                    for (std::size_t w = 0; w < kMaskWords; ++w) answer.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
+                    const std::size_t at = answer.size();
+                    answer.resize(at + LeafT::SIZE / 2);
+                    std::memcpy(answer.data() + at, leaf->buffer().data(), LeafT::SIZE * sizeof(float));
+                    if (const auto left = askedFor.find(o); left != askedFor.end() && --left->second == 0) {
+                        delete from.stealNode<LeafT>(o, 0.0f, false);
+                        askedFor.erase(left);
+                    }
+                } else {
+                    answer.insert(answer.end(), {0, std::uint64_t(bitsOf(double(from.getValue(o))))});
+                }
+            }
+        }
+        const std::vector<Words> answered = comm.exchange(answers);
+        std::vector<Words>().swap(answers);
+        for (int r = 0; r < pieces; ++r) {
+            if (r == piece) continue;
+            const Words& req = requests[std::size_t(r)];
+            const Words& ans = answered[std::size_t(r)];
+            std::size_t at = 0;
+            for (std::size_t i = cut(req.size(), round); i < cut(req.size(), round + 1); i += 3) {
+                const Coord o{int(req[i]), int(req[i + 1]), int(req[i + 2])};
+                if (ans[at] == 1) {
+                    auto leaf = std::make_unique<LeafT>(o, 0.0f);
+                    for (std::size_t w = 0; w < kMaskWords; ++w)
+                        leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)) = ans[at + 1 + w];
+                    std::memcpy(leaf->buffer().data(), ans.data() + at + 1 + kMaskWords, LeafT::SIZE * sizeof(float));
+                    acc.addLeaf(leaf.release());
+                    at += 1 + kMaskWords + LeafT::SIZE / 2;
+                } else {
+                    acc.addTile(/*level=*/1, o, float(doubleOf(ans[at + 1])), /*active=*/false);
+                    at += 2;
+                }
+            }
+        }
+    }
+}
+
 } // namespace
 
 DensePiece loadRawArrayPiece(const RawSlabReader& reader, const VolumeRequest& request, const PieceComm& comm,
@@ -297,60 +379,9 @@ DensePiece spreadLayers(SparseResult&& sparse, const Coord& dims, float isovalue
                         {std::uint64_t(kBlock * bx), std::uint64_t(kBlock * by), std::uint64_t(kBlock * bz)});
     std::vector<bool>().swap(wanted);
     const std::vector<Words> asked = comm.exchange(requests);
-    // Other pieces get copies (a leaf: 1, its mask, its 512 values; a tile: 0, its value); this
-    // piece's own requests take the leaves out of its tree below, uncopied.
-    std::vector<Words> answers(static_cast<std::size_t>(pieces));
-    for (int r = 0; r < pieces; ++r) {
-        if (r == piece) continue;
-        for (std::size_t i = 0; i < asked[std::size_t(r)].size(); i += 3) {
-            const Words& a = asked[std::size_t(r)];
-            const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
-            Words& answer = answers[std::size_t(r)];
-            if (const LeafT* leaf = sparse.tree->probeConstLeaf(o)) {
-                answer.push_back(1);
-                for (std::size_t w = 0; w < kMaskWords; ++w) answer.push_back(leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)));
-                const std::size_t at = answer.size();
-                answer.resize(at + LeafT::SIZE / 2);
-                std::memcpy(answer.data() + at, leaf->buffer().data(), LeafT::SIZE * sizeof(float));
-            } else {
-                answer.insert(answer.end(), {0, std::uint64_t(bitsOf(double(sparse.tree->getValue(o))))});
-            }
-        }
-    }
-    std::vector<Words> answered = comm.exchange(answers);
-    std::vector<Words>().swap(answers);
+
     whole.tree = std::make_shared<openvdb::FloatTree>(0.0f);
-    {
-        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*whole.tree);
-        for (int r = 0; r < pieces; ++r) {
-            const Words& req = requests[std::size_t(r)];
-            if (r == piece) {
-                for (std::size_t i = 0; i < req.size(); i += 3) {
-                    const Coord o{int(req[i]), int(req[i + 1]), int(req[i + 2])};
-                    if (LeafT* leaf = sparse.tree->stealNode<LeafT>(o, 0.0f, false)) acc.addLeaf(leaf);
-                    else acc.addTile(/*level=*/1, o, sparse.tree->getValue(o), /*active=*/false);
-                }
-                continue;
-            }
-            const Words& ans = answered[std::size_t(r)];
-            std::size_t at = 0;
-            for (std::size_t i = 0; i < req.size(); i += 3) {
-                const Coord o{int(req[i]), int(req[i + 1]), int(req[i + 2])};
-                if (ans[at] == 1) {
-                    auto leaf = std::make_unique<LeafT>(o, 0.0f);
-                    for (std::size_t w = 0; w < kMaskWords; ++w)
-                        leaf->getValueMask().getWord<std::uint64_t>(openvdb::Index(w)) = ans[at + 1 + w];
-                    std::memcpy(leaf->buffer().data(), ans.data() + at + 1 + kMaskWords, LeafT::SIZE * sizeof(float));
-                    acc.addLeaf(leaf.release());
-                    at += 1 + kMaskWords + LeafT::SIZE / 2;
-                } else {
-                    acc.addTile(/*level=*/1, o, float(doubleOf(ans[at + 1])), /*active=*/false);
-                    at += 2;
-                }
-            }
-            Words().swap(answered[std::size_t(r)]);
-        }
-    }
+    gatherBlocks(*sparse.tree, *whole.tree, requests, asked, comm);
     sparse.tree.reset();
     if (whole.range.min <= whole.range.max) whole.tree->root().setBackground(float(whole.range.min), false);
     out.volume = denseVolume(std::move(whole), dims, isovalue);
