@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <new>
 #include <optional>
 #include <vector>
 
@@ -25,31 +26,48 @@ namespace {
 
 namespace fs = std::filesystem;
 
-thread_local std::string tLastTiffError;
-
-/// libtiff's errors become the InputError's text instead of lines on stderr; warnings are dropped.
-void captureError(const char* module, const char* format, va_list args)
+/// libtiff's errors on one file become the InputError's text instead of lines on stderr;
+/// warnings are dropped. The handlers belong to the file (TIFFOpenExt, libtiff 4.5): nothing
+/// global changes in a process that loads isouq (Python, Blender), and no thread-local state
+/// is needed when threads read different files.
+int keepError(TIFF*, void* error, const char* module, const char* format, va_list args)
 {
     char text[512];
     std::vsnprintf(text, sizeof(text), format, args);
-    tLastTiffError = (module ? std::string(module) + ": " : std::string()) + text;
-    for (char& c : tLastTiffError)
+    std::string& line = *static_cast<std::string*>(error);
+    line = (module ? std::string(module) + ": " : std::string()) + text;
+    for (char& c : line)
         if (c == '\n' || c == '\r') c = ' '; // the InputError is one line
+    return 1; // handled: libtiff's process-wide handlers are not called
 }
-void ignoreWarning(const char*, const char*, va_list) {}
+int dropWarning(TIFF*, void*, const char*, const char*, va_list) { return 1; }
 
-struct TiffClose {
-    void operator()(TIFF* t) const { TIFFClose(t); }
+/// An open TIFF file and the last error libtiff reported on it.
+class TiffFile {
+public:
+    /// @throw InputError when libtiff cannot open @a path.
+    explicit TiffFile(const std::string& path)
+    {
+        std::unique_ptr<TIFFOpenOptions, void (*)(TIFFOpenOptions*)> options(TIFFOpenOptionsAlloc(), TIFFOpenOptionsFree);
+        if (!options) throw std::bad_alloc();
+        TIFFOpenOptionsSetErrorHandlerExtR(options.get(), keepError, &mError);
+        TIFFOpenOptionsSetWarningHandlerExtR(options.get(), dropWarning, nullptr);
+        mTif = TIFFOpenExt(path.c_str(), "r", options.get());
+        if (!mTif) throw InputError("'" + path + "' is not a readable TIFF file: " + mError);
+    }
+    ~TiffFile() { TIFFClose(mTif); }
+    TiffFile(const TiffFile&) = delete;
+    TiffFile& operator=(const TiffFile&) = delete;
+
+    TIFF* get() const { return mTif; }
+    /// libtiff's last error on this file since clearError(); empty when none.
+    const std::string& error() const { return mError; }
+    void clearError() { mError.clear(); }
+
+private:
+    std::string mError; // the handlers' target: its address is fixed for the file's life
+    TIFF* mTif = nullptr;
 };
-using TiffPtr = std::unique_ptr<TIFF, TiffClose>;
-
-TiffPtr openTiff(const std::string& path)
-{
-    tLastTiffError.clear(); // errors after this one belong to this file
-    TiffPtr tif(TIFFOpen(path.c_str(), "r"));
-    if (!tif) throw InputError("'" + path + "' is not a readable TIFF file: " + tLastTiffError);
-    return tif;
-}
 
 /// What one page holds.
 struct Page {
@@ -114,25 +132,25 @@ public:
     explicit TiffSlices(std::vector<std::string> files) : mFiles(std::move(files))
     {
         if (mFiles.size() == 1) {
-            mStack = openTiff(mFiles[0]);
+            mStack = std::make_unique<TiffFile>(mFiles[0]);
             int z = 0;
             do {
-                const Page p = readPage(mStack.get(), where(z));
+                const Page p = readPage(mStack->get(), where(z));
                 if (z == 0) mPage = p;
                 else if (!(p == mPage)) mismatch(z, p);
                 ++z;
-            } while (TIFFReadDirectory(mStack.get()));
+            } while (TIFFReadDirectory(mStack->get()));
             // The chain of pages ends at a damaged, missing or looping directory (libtiff stops
             // at a loop without an error): not a shorter stack.
-            if (!tLastTiffError.empty()) fail(z);
-            if (!TIFFLastDirectory(mStack.get())) {
+            if (!mStack->error().empty()) fail(z, *mStack);
+            if (!TIFFLastDirectory(mStack->get())) {
                 throw InputError("cannot read " + where(z) + ": the directory of page " + std::to_string(z - 1)
                     + " points to one that cannot be read or was read before");
             }
             dims = Coord(int(mPage.width), int(mPage.height), z);
         } else {
             for (std::size_t z = 0; z < mFiles.size(); ++z) {
-                const Page p = readPage(openTiff(mFiles[z]).get(), where(int(z)));
+                const Page p = readPage(TiffFile(mFiles[z]).get(), where(int(z)));
                 if (z == 0) mPage = p;
                 else if (!(p == mPage)) mismatch(int(z), p);
             }
@@ -146,11 +164,11 @@ public:
     {
         const std::size_t slice = std::size_t(dims.x()) * dims.y();
         for (int z = z0; z < z0 + count; ++z) {
-            TiffPtr single;
-            TIFF* tif = mStack.get();
-            if (!tif) tif = (single = openTiff(mFiles[z])).get();
-            else if (!TIFFSetDirectory(tif, tdir_t(z))) fail(z);
-            readPixels(tif, z);
+            std::optional<TiffFile> single;
+            TiffFile* file = mStack.get();
+            if (!file) file = &single.emplace(mFiles[z]);
+            else if (!TIFFSetDirectory(file->get(), tdir_t(z))) fail(z, *file);
+            readPixels(*file, z);
             decodeSamples(mPixels.data(), slice, mPage.type, __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__, 1.0, 0.0,
                 out + std::size_t(z - z0) * slice);
         }
@@ -166,29 +184,30 @@ private:
         throw InputError(where(z) + " is " + describe(p) + ", but " + where(0) + " is " + describe(mPage)
             + ": every slice of a stack must match");
     }
-    [[noreturn]] void fail(int z) const
+    [[noreturn]] void fail(int z, const TiffFile& file) const
     {
-        throw InputError("cannot read " + where(z) + ": " + (tLastTiffError.empty() ? "read error" : tLastTiffError));
+        throw InputError("cannot read " + where(z) + ": " + (file.error().empty() ? "read error" : file.error()));
     }
 
     /// The page's pixels, row by row, in native byte order (libtiff swaps), into mPixels.
-    void readPixels(TIFF* tif, int z)
+    void readPixels(TiffFile& file, int z)
     {
-        tLastTiffError.clear();
+        file.clearError();
+        TIFF* tif = file.get();
         const std::size_t bytes = sampleBytes(mPage.type), rowBytes = std::size_t(mPage.width) * bytes;
         mPixels.resize(rowBytes * mPage.height);
         if (TIFFIsTiled(tif)) {
             std::uint32_t tw = 0, th = 0;
             TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tw);
             TIFFGetField(tif, TIFFTAG_TILELENGTH, &th);
-            if (tw == 0 || th == 0) fail(z);
+            if (tw == 0 || th == 0) fail(z, file);
             memory_internal::checkFits(std::uint64_t(TIFFTileSize64(tif)), where(z) + " (tiles of " + std::to_string(tw)
                 + "x" + std::to_string(th) + " pixels)");
             std::vector<char> tile(TIFFTileSize(tif));
-            if (tile.size() < std::size_t(tw) * th * bytes) fail(z);
+            if (tile.size() < std::size_t(tw) * th * bytes) fail(z, file);
             for (std::uint32_t y0 = 0; y0 < mPage.height; y0 += th) {
                 for (std::uint32_t x0 = 0; x0 < mPage.width; x0 += tw) {
-                    if (TIFFReadTile(tif, tile.data(), x0, y0, 0, 0) < 0) fail(z);
+                    if (TIFFReadTile(tif, tile.data(), x0, y0, 0, 0) < 0) fail(z, file);
                     const std::uint32_t w = std::min(tw, mPage.width - x0), h = std::min(th, mPage.height - y0);
                     for (std::uint32_t r = 0; r < h; ++r)
                         std::copy_n(tile.data() + std::size_t(r) * tw * bytes, std::size_t(w) * bytes,
@@ -196,15 +215,15 @@ private:
                 }
             }
         } else {
-            if (std::size_t(TIFFScanlineSize(tif)) != rowBytes) fail(z);
+            if (std::size_t(TIFFScanlineSize(tif)) != rowBytes) fail(z, file);
             for (std::uint32_t y = 0; y < mPage.height; ++y)
-                if (TIFFReadScanline(tif, mPixels.data() + std::size_t(y) * rowBytes, y) < 0) fail(z);
+                if (TIFFReadScanline(tif, mPixels.data() + std::size_t(y) * rowBytes, y) < 0) fail(z, file);
         }
-        if (!tLastTiffError.empty()) fail(z); // libtiff reported damage but returned data
+        if (!file.error().empty()) fail(z, file); // libtiff reported damage but returned data
     }
 
     std::vector<std::string> mFiles;
-    TiffPtr mStack;
+    std::unique_ptr<TiffFile> mStack;
     Page mPage;
     std::vector<char> mPixels;
 };
@@ -212,7 +231,7 @@ private:
 /// ImageJ's description (`ImageJ=...`, `spacing=...`, `unit=...`) and resolution tags.
 std::optional<std::pair<openvdb::Vec3d, std::string>> imageJSpacing(const std::string& path)
 {
-    TiffPtr tif = openTiff(path);
+    const TiffFile tif(path);
     const char* text = nullptr;
     if (!TIFFGetField(tif.get(), TIFFTAG_IMAGEDESCRIPTION, &text) || !text) return std::nullopt;
     const std::string description = text;
@@ -245,8 +264,6 @@ bool isTiffFolder(const std::string& path)
 
 DensePiece readTiff(const VolumeRequest& request, openvdb::util::NullInterrupter* /*interrupter*/, const ScanLoader& load)
 {
-    TIFFSetErrorHandler(captureError);
-    TIFFSetWarningHandler(ignoreWarning);
     const std::string& path = request.input;
     rejectRawFlags(request, "a TIFF stack", /*spacingAllowed=*/true);
     std::vector<std::string> files;
