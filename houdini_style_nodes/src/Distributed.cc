@@ -8,6 +8,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -15,7 +16,8 @@
 namespace isouq::nodes {
 namespace {
 
-constexpr int kTag = 1;
+constexpr int kTag = 1;         // send and receive
+constexpr int kExchangeTag = 2; // exchange
 
 std::vector<Words> split(const Words& all, const std::vector<int>& counts, const std::vector<int>& displs)
 {
@@ -81,18 +83,34 @@ public:
 
     std::vector<Words> exchange(const std::vector<Words>& out) const override
     {
-        std::vector<int> sendCounts(static_cast<std::size_t>(mSize)), recvCounts(static_cast<std::size_t>(mSize));
-        Words send;
-        for (std::size_t r = 0; r < out.size(); ++r) {
-            sendCounts[r] = int(out[r].size());
-            send.insert(send.end(), out[r].begin(), out[r].end());
+        // The counts first, then each rank's words straight from its vector into the receiver's:
+        // no packed copy of everything sent and none of everything received (a scan's blocks
+        // are most of what a rank loads, RawSource.cc). Messages longer than an int's count go
+        // in pieces, which arrive in order (same tag and pair).
+        std::vector<std::uint64_t> sendCounts(static_cast<std::size_t>(mSize)), recvCounts(sendCounts.size());
+        for (std::size_t r = 0; r < out.size(); ++r) sendCounts[r] = out[r].size();
+        MPI_Alltoall(sendCounts.data(), 1, MPI_UINT64_T, recvCounts.data(), 1, MPI_UINT64_T, mComm);
+        std::vector<Words> in(sendCounts.size());
+        std::vector<MPI_Request> pending;
+        constexpr std::uint64_t kPiece = std::uint64_t(1) << 30;
+        for (int r = 0; r < mSize; ++r) {
+            if (r == mRank) continue;
+            Words& words = in[std::size_t(r)];
+            words.resize(std::size_t(recvCounts[std::size_t(r)]));
+            for (std::uint64_t at = 0; at < words.size(); at += kPiece)
+                MPI_Irecv(words.data() + at, int(std::min(kPiece, words.size() - at)), MPI_UINT64_T, r, kExchangeTag,
+                    mComm, &pending.emplace_back());
         }
-        MPI_Alltoall(sendCounts.data(), 1, MPI_INT, recvCounts.data(), 1, MPI_INT, mComm);
-        const std::vector<int> sendDispls = displacements(sendCounts), recvDispls = displacements(recvCounts);
-        Words recv(std::size_t(recvDispls.back() + recvCounts.back()));
-        MPI_Alltoallv(send.data(), sendCounts.data(), sendDispls.data(), MPI_UINT64_T, recv.data(), recvCounts.data(),
-            recvDispls.data(), MPI_UINT64_T, mComm);
-        return split(recv, recvCounts, recvDispls);
+        for (int r = 0; r < mSize; ++r) {
+            if (r == mRank) continue;
+            const Words& words = out[std::size_t(r)];
+            for (std::uint64_t at = 0; at < words.size(); at += kPiece)
+                MPI_Isend(words.data() + at, int(std::min(kPiece, words.size() - at)), MPI_UINT64_T, r, kExchangeTag,
+                    mComm, &pending.emplace_back());
+        }
+        in[std::size_t(mRank)] = out[std::size_t(mRank)];
+        MPI_Waitall(int(pending.size()), pending.data(), MPI_STATUSES_IGNORE);
+        return in;
     }
 
     Words broadcast(const Words& words, int root) const override
