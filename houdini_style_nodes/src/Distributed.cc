@@ -92,22 +92,20 @@ public:
         MPI_Alltoall(sendCounts.data(), 1, MPI_UINT64_T, recvCounts.data(), 1, MPI_UINT64_T, mComm);
         std::vector<Words> in(sendCounts.size());
         std::vector<MPI_Request> pending;
-        constexpr std::uint64_t kPiece = std::uint64_t(1) << 30;
+        const auto post = [&](auto start, auto* data, std::uint64_t n, int peer) {
+            constexpr std::uint64_t kPiece = std::uint64_t(1) << 30;
+            for (std::uint64_t at = 0; at < n; at += kPiece)
+                start(data + at, int(std::min(kPiece, n - at)), MPI_UINT64_T, peer, kExchangeTag, mComm,
+                    &pending.emplace_back());
+        };
         for (int r = 0; r < mSize; ++r) {
             if (r == mRank) continue;
             Words& words = in[std::size_t(r)];
             words.resize(std::size_t(recvCounts[std::size_t(r)]));
-            for (std::uint64_t at = 0; at < words.size(); at += kPiece)
-                MPI_Irecv(words.data() + at, int(std::min(kPiece, words.size() - at)), MPI_UINT64_T, r, kExchangeTag,
-                    mComm, &pending.emplace_back());
+            post(MPI_Irecv, words.data(), words.size(), r);
         }
-        for (int r = 0; r < mSize; ++r) {
-            if (r == mRank) continue;
-            const Words& words = out[std::size_t(r)];
-            for (std::uint64_t at = 0; at < words.size(); at += kPiece)
-                MPI_Isend(words.data() + at, int(std::min(kPiece, words.size() - at)), MPI_UINT64_T, r, kExchangeTag,
-                    mComm, &pending.emplace_back());
-        }
+        for (int r = 0; r < mSize; ++r)
+            if (r != mRank) post(MPI_Isend, out[std::size_t(r)].data(), out[std::size_t(r)].size(), r);
         in[std::size_t(mRank)] = out[std::size_t(mRank)];
         MPI_Waitall(int(pending.size()), pending.data(), MPI_STATUSES_IGNORE);
         return in;

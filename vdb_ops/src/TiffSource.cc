@@ -34,10 +34,7 @@ int keepError(TIFF*, void* error, const char* module, const char* format, va_lis
 {
     char text[512];
     std::vsnprintf(text, sizeof(text), format, args);
-    std::string& line = *static_cast<std::string*>(error);
-    line = (module ? std::string(module) + ": " : std::string()) + text;
-    for (char& c : line)
-        if (c == '\n' || c == '\r') c = ' '; // the InputError is one line
+    *static_cast<std::string*>(error) = printedLine((module ? std::string(module) + ": " : std::string()) + text);
     return 1; // handled: libtiff's process-wide handlers are not called
 }
 int dropWarning(TIFF*, void*, const char*, const char*, va_list) { return 1; }
