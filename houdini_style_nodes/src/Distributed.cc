@@ -81,7 +81,7 @@ public:
         return mRank == 0 ? split(all, counts, displs) : std::vector<Words>();
     }
 
-    std::vector<Words> exchange(const std::vector<Words>& out) const override
+    void exchangeInto(const std::vector<Words>& out, std::vector<Words>& in) const override
     {
         // The counts first, then each rank's words straight from its vector into the receiver's:
         // no packed copy of everything sent and none of everything received (a scan's blocks
@@ -90,7 +90,7 @@ public:
         std::vector<std::uint64_t> sendCounts(static_cast<std::size_t>(mSize)), recvCounts(sendCounts.size());
         for (std::size_t r = 0; r < out.size(); ++r) sendCounts[r] = out[r].size();
         MPI_Alltoall(sendCounts.data(), 1, MPI_UINT64_T, recvCounts.data(), 1, MPI_UINT64_T, mComm);
-        std::vector<Words> in(sendCounts.size());
+        in.resize(sendCounts.size());
         std::vector<MPI_Request> pending;
         const auto post = [&](auto start, auto* data, std::uint64_t n, int peer) {
             constexpr std::uint64_t kPiece = std::uint64_t(1) << 30;
@@ -108,7 +108,6 @@ public:
             if (r != mRank) post(MPI_Isend, out[std::size_t(r)].data(), out[std::size_t(r)].size(), r);
         in[std::size_t(mRank)] = out[std::size_t(mRank)];
         MPI_Waitall(int(pending.size()), pending.data(), MPI_STATUSES_IGNORE);
-        return in;
     }
 
     Words broadcast(const Words& words, int root) const override

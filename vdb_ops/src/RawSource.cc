@@ -218,12 +218,16 @@ void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std:
     // at n i / kRounds, the sender's from what it was asked, the receiver's from its request.
     constexpr std::size_t kRounds = 16;
     const auto cut = [](std::size_t n, std::size_t i) { return n / 3 * i / kRounds * 3; };
+    // The first round's buffers serve every round after it (fresh pages cost, Bricks.h): the
+    // answers reserved at their largest (every block a leaf), so they never grow by doubling.
+    std::vector<Words> answers(static_cast<std::size_t>(pieces)), answered;
     for (std::size_t round = 0; round < kRounds; ++round) {
-        std::vector<Words> answers(static_cast<std::size_t>(pieces));
         for (int r = 0; r < pieces; ++r) {
             if (r == piece) continue;
             const Words& a = asked[std::size_t(r)];
             Words& answer = answers[std::size_t(r)];
+            answer.clear();
+            answer.reserve((cut(a.size(), round + 1) - cut(a.size(), round)) / 3 * (1 + kMaskWords + LeafT::SIZE / 2));
             for (std::size_t i = cut(a.size(), round); i < cut(a.size(), round + 1); i += 3) {
                 const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
                 const LeafT* leaf = from.probeConstLeaf(o);
@@ -243,8 +247,7 @@ void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std:
                 }
             }
         }
-        const std::vector<Words> answered = comm.exchange(answers);
-        std::vector<Words>().swap(answers);
+        comm.exchangeInto(answers, answered);
         for (int r = 0; r < pieces; ++r) {
             if (r == piece) continue;
             const Words& req = requests[std::size_t(r)];

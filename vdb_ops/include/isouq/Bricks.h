@@ -32,8 +32,17 @@ public:
     virtual int size() const = 0;
     /// Each piece's @a words, in piece order, on every piece.
     virtual std::vector<Words> allgather(const Words& words) const = 0;
-    /// Sends out[r] to piece r; returns what each piece sent here.
-    virtual std::vector<Words> exchange(const std::vector<Words>& out) const = 0;
+    /// Sends out[r] to piece r; in[r] becomes what piece r sent here, in the memory in[r]
+    /// already has where it is large enough (exchanges in rounds touch no fresh pages after
+    /// the first: on a VM every fresh page is the host's to back, bench/README.md).
+    virtual void exchangeInto(const std::vector<Words>& out, std::vector<Words>& in) const = 0;
+    /// exchangeInto into new vectors.
+    std::vector<Words> exchange(const std::vector<Words>& out) const
+    {
+        std::vector<Words> in;
+        exchangeInto(out, in);
+        return in;
+    }
     /// Runs @a body, then agrees: when it threw on any piece, every piece throws.
     virtual void agree(const std::function<void()>& body) const = 0;
 };
