@@ -226,9 +226,10 @@ void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std:
             if (r == piece) continue;
             const Words& a = asked[std::size_t(r)];
             Words& answer = answers[std::size_t(r)];
+            const std::size_t first = cut(a.size(), round), last = cut(a.size(), round + 1);
             answer.clear();
-            answer.reserve((cut(a.size(), round + 1) - cut(a.size(), round)) / 3 * (1 + kMaskWords + LeafT::SIZE / 2));
-            for (std::size_t i = cut(a.size(), round); i < cut(a.size(), round + 1); i += 3) {
+            answer.reserve((last - first) / 3 * (1 + kMaskWords + LeafT::SIZE / 2));
+            for (std::size_t i = first; i < last; i += 3) {
                 const Coord o{int(a[i]), int(a[i + 1]), int(a[i + 2])};
                 const LeafT* leaf = from.probeConstLeaf(o);
                 if (!leaf) leaf = acc.probeConstLeaf(o); // one this piece also wants
