@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Thread scaling of a whole `isouq mesh` run on a scan (issue 15; bench/README.md): each
-binary at -j 0 (every core) and -j 1, interleaved round by round, `--linear-only`, with the
-summary's stage times, and what is left outside them: start-up (twice with the huge-page
+binary at -j 0 (every core) and -j 1, interleaved round by round, `--linear-only` (or the full
+pass with --full: cubic, WENO and every estimate), with the summary's stage times, and what is left outside them: start-up (twice with the huge-page
 restart), writing the files not overlapped with the summary, the renames and the exit.
 
-  bench/scan_threads.py SCAN ROUNDS BIN [BIN ...]
+  bench/scan_threads.py [--full] SCAN ROUNDS BIN [BIN ...]
   e.g. bench/scan_threads.py /tmp/isouq-scan/sphere_1024x1024x1024_uint8.raw 8 build/houdini_style_nodes/isouq
 
 Prints per run: wall s, peak MB, load/mesh/measure ms, rest s; then per binary the medians,
@@ -25,14 +25,13 @@ import sys
 import tempfile
 
 
-def run(binary, scan, threads, folder):
+def run(binary, scan, threads, folder, flags):
     out, summary, times = (os.path.join(folder, n) for n in ("o.ply", "o.json", "time.txt"))
     for f in (out, summary):
         if os.path.exists(f):
             os.remove(f)
     os.sync()
-    cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, "--linear-only", "-j", str(threads),
-           "-q", "-o", out, "--summary", summary]
+    cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, *flags, "-j", str(threads), "-q", "-o", out, "--summary", summary]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     wall, peak_kb = open(times).read().split()
     stages = json.load(open(summary))["timings_ms"]
@@ -41,16 +40,19 @@ def run(binary, scan, threads, folder):
 
 
 def main():
-    if len(sys.argv) < 4:
+    args = sys.argv[1:]
+    flags = [] if args[:1] == ["--full"] else ["--linear-only"]
+    args = args[1:] if not flags else args
+    if len(args) < 3:
         sys.exit(__doc__)
-    scan, rounds, binaries = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
-    print("load average before:", " ".join(open("/proc/loadavg").read().split()[:3]))
+    scan, rounds, binaries = args[0], int(args[1]), args[2:]
+    print("pass:", "full" if not flags else "linear", "; load average before:", " ".join(open("/proc/loadavg").read().split()[:3]))
     runs = {(b, j): [] for b in binaries for j in (0, 1)}
     with tempfile.TemporaryDirectory() as folder:
         for r in range(rounds):
             for j in (0, 1):
                 for b in (binaries if r % 2 == 0 else binaries[::-1]):
-                    x = run(b, scan, j, folder)
+                    x = run(b, scan, j, folder, flags)
                     runs[(b, j)].append(x)
                     print(f"round {r + 1} -j {j} {b}: {x['wall']:.2f} s, {x['peak_mb']} MB, load {x['load']:.0f}, "
                           f"mesh {x['mesh']:.0f}, measure {x['measure']:.0f} ms, rest {x['rest']:.2f} s", flush=True)
