@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Thread scaling of a whole `isouq mesh` run on a scan (issue 15; bench/README.md): each
-binary at -j 0 (every core) and -j 1, interleaved round by round, `--linear-only` (or the full
-pass with --full: cubic, WENO and every estimate), with the summary's stage times, and what is left outside them: start-up (twice with the huge-page
-restart), writing the files not overlapped with the summary, the renames and the exit.
+binary at -j 0 (every core) and -j 1, interleaved round by round, `--linear-only` (with --full,
+the full pass: cubic, WENO and every estimate), with the summary's stage times, and what is
+left outside them: start-up (twice with the huge-page restart), writing the files not
+overlapped with the summary, the renames and the exit.
 
   bench/scan_threads.py [--full] SCAN ROUNDS BIN [BIN ...]
   e.g. bench/scan_threads.py /tmp/isouq-scan/sphere_1024x1024x1024_uint8.raw 8 build/houdini_style_nodes/isouq
@@ -31,7 +32,8 @@ def run(binary, scan, threads, folder, flags):
         if os.path.exists(f):
             os.remove(f)
     os.sync()
-    cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, *flags, "-j", str(threads), "-q", "-o", out, "--summary", summary]
+    cmd = ["/usr/bin/time", "-f", "%e %M", "-o", times, binary, "mesh", scan, *flags, "-j", str(threads),
+           "-q", "-o", out, "--summary", summary]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     wall, peak_kb = open(times).read().split()
     stages = json.load(open(summary))["timings_ms"]
@@ -40,13 +42,13 @@ def run(binary, scan, threads, folder, flags):
 
 
 def main():
-    args = sys.argv[1:]
-    flags = [] if args[:1] == ["--full"] else ["--linear-only"]
-    args = args[1:] if not flags else args
+    full = sys.argv[1:2] == ["--full"]
+    flags, args = ([], sys.argv[2:]) if full else (["--linear-only"], sys.argv[1:])
     if len(args) < 3:
         sys.exit(__doc__)
     scan, rounds, binaries = args[0], int(args[1]), args[2:]
-    print("pass:", "full" if not flags else "linear", "; load average before:", " ".join(open("/proc/loadavg").read().split()[:3]))
+    load = " ".join(open("/proc/loadavg").read().split()[:3])
+    print(f"pass: {'full' if full else 'linear'}; load average before: {load}")
     runs = {(b, j): [] for b in binaries for j in (0, 1)}
     with tempfile.TemporaryDirectory() as folder:
         for r in range(rounds):
