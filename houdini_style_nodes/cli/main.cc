@@ -20,7 +20,9 @@
 #include <CLI/CLI.hpp>
 #include <openvdb/Exceptions.h>
 #include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -160,6 +162,10 @@ struct MpiSession {
         int provided = 0;
         MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
         ranks = isouq::nodes::mpiRanks(MPI_COMM_WORLD, [] { return isouq::cli::ProgressInterrupter::interrupted(); });
+        MPI_Comm machine;
+        MPI_Comm_split_type(MPI_COMM_WORLD, MPI_COMM_TYPE_SHARED, 0, MPI_INFO_NULL, &machine);
+        MPI_Comm_size(machine, &ranksOnMachine);
+        MPI_Comm_free(&machine);
     }
     ~MpiSession()
     {
@@ -167,6 +173,7 @@ struct MpiSession {
         MPI_Finalize();
     }
     std::unique_ptr<isouq::nodes::Ranks> ranks;
+    int ranksOnMachine = 1; ///< this rank's and the others on its machine (shared memory)
 };
 #endif
 
@@ -269,7 +276,7 @@ int isouq_cli_main(int argc, char** argv)
     mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply or .vtp)");
     mesh->add_option("--save-graph", saveGraph,
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
-    mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
+    mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores; under MPI, the cores shared among a machine's ranks)")->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     isouq::nodes::SequenceRequest sequence;
     auto* frames = mesh->add_option("--frames", sequence.frames,
@@ -297,7 +304,7 @@ int isouq_cli_main(int argc, char** argv)
     CLI::App* run = app.add_subcommand("run", "Run a JSON node graph");
     run->add_option("GRAPH", graphPath, "Graph file (.json)")->required();
     run->add_option("--out-dir,-d", outDir, "Folder for relative output paths (default: the current one)");
-    run->add_option("--threads,-j", threads, "Worker threads (0: all cores)")->check(CLI::Range(0, 4096));
+    run->add_option("--threads,-j", threads, "Worker threads (0: all cores; under MPI, the cores shared among a machine's ranks)")->check(CLI::Range(0, 4096));
     run->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     run->footer(kRunFooter);
 
@@ -320,6 +327,12 @@ int isouq_cli_main(int argc, char** argv)
         return kExitBadInput;
     }
 
+    // -j 0 under MPI: the cores this rank may use (its affinity mask) shared with the other ranks
+    // on its machine, so that `mpirun -np N` on one machine does not run N times its cores.
+#ifdef ISOUQ_HAVE_MPI
+    if (threads == 0 && mpi && mpi->ranksOnMachine > 1)
+        threads = std::max(1, tbb::this_task_arena::max_concurrency() / mpi->ranksOnMachine);
+#endif
     std::unique_ptr<tbb::global_control> threadLimit;
     if (threads > 0)
         threadLimit = std::make_unique<tbb::global_control>(

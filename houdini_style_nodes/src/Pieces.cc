@@ -11,6 +11,7 @@
 #include <isouq/Errors.h>
 #include <isouq/MeshIO.h>
 #include <isouq/MeshTopology.h>
+#include <isouq/Threads.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -552,7 +553,7 @@ void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::jso
     const MeshPiece& piece = *mesh.piece;
     const int rank = ranks.rank();
     Words mine = {piece.voxelsRead, mesh.mesh.vertexCount(), mesh.mesh.triangleCount(),
-        piece.plan->end(rank) - piece.plan->begin(rank), piece.plan->weight(rank)};
+        piece.plan->end(rank) - piece.plan->begin(rank), piece.plan->weight(rank), std::uint64_t(threadsInUse())};
     const Words text = wordsOfText(timings.dump());
     mine.insert(mine.end(), text.begin(), text.end());
     const std::vector<Words> all = ranks.gather(mine);
@@ -560,9 +561,9 @@ void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::jso
     nlohmann::json list = nlohmann::json::array(), slowest = nlohmann::json::object();
     for (int r = 0; r < ranks.size(); ++r) {
         const Words& w = all[std::size_t(r)];
-        const nlohmann::json times = nlohmann::json::parse(textOfWords(Words(w.begin() + 5, w.end())));
+        const nlohmann::json times = nlohmann::json::parse(textOfWords(Words(w.begin() + 6, w.end())));
         list.push_back({{"rank", r}, {"voxels_read", w[0]}, {"vertices", w[1]}, {"triangles", w[2]}, {"blocks", w[3]},
-            {"weight", w[4]}, {"timings_ms", times}});
+            {"weight", w[4]}, {"threads", w[5]}, {"timings_ms", times}});
         for (const auto& [key, value] : times.items())
             slowest[key] = std::max(slowest.value(key, 0.0), value.get<double>());
     }

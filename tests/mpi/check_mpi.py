@@ -160,6 +160,8 @@ def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
         sys.exit("summaries differ in " + ", ".join(f"{k}: {s1.get(k)} vs {s2.get(k)}" for k in keys))
     if sum(r["triangles"] for r in ranks) != s1["triangles"] or sum(r["vertices"] for r in ranks) != s1["vertices"]:
         sys.exit(f"ranks do not add up: {ranks}")
+    if any(r.get("threads") != 1 for r in ranks):
+        sys.exit(f"ranks block: threads {[r.get('threads') for r in ranks]} at -j 1")
     if grid is not None:
         # Each rank reads at most its share (the leaves of its blocks) plus the halo its
         # stencils need (the leaves one leaf around its blocks), both computed here.
@@ -407,6 +409,25 @@ def interrupt(args):
         print(f"np {args.np}: SIGINT to the {target}: exit {p.returncode}, no output")
 
 
+def threads(args):
+    """-j 0 (the default) under mpirun: the cores a rank may use shared among the ranks of its
+    machine (docs/mpi.md), every rank here; an explicit -j is taken as given (up to the cores:
+    the ranks block counts the threads a loop gets)."""
+    work = os.path.join(args.work, f"threads_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    cores = len(os.sched_getaffinity(0))  # --bind-to none: every rank may use the test's cores
+    for flags, want in (([], max(1, cores // args.np)), (["-j", "3"], min(3, cores))):
+        out, summary = os.path.join(work, "t.ply"), os.path.join(work, "t.json")
+        r = run(mpirun(args, args.np) + ["--bind-to", "none", args.cli, "mesh", "field:tubey", "--resolution", "32",
+                                         "-o", out, "--summary", summary, "-q"] + flags)
+        if r.returncode != 0:
+            sys.exit(f"mpirun -np {args.np} failed ({r.returncode}): {r.stderr}")
+        got = [x["threads"] for x in json.load(open(summary))["ranks"]]
+        if got != [want] * args.np:
+            sys.exit(f"np {args.np}, {cores} cores, {flags or 'no -j'}: threads per rank {got}, expected {want}")
+        print(f"np {args.np}, {cores} cores, {' '.join(flags) or 'no -j'}: {want} threads per rank")
+
+
 def main():
     ap = argparse.ArgumentParser()
     for k in ("cli", "mpirun", "case", "data", "work"):
@@ -445,6 +466,8 @@ def main():
         bad_input(args)
     elif args.case == "interrupt":
         interrupt(args)
+    elif args.case == "threads":
+        threads(args)
     else:
         sys.exit("unknown case " + args.case)
 

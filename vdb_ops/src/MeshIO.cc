@@ -1,7 +1,7 @@
 // isouq: PLY writer and reader (SPEC §6) and atomic writes (SPEC §8: no output is left behind
 // on failure, an existing output is never clobbered). Header layout: docs/ply-format.md.
 #include "MeshIOInternal.h"
-#include "Threads.h"
+#include "isouq/Threads.h"
 
 #include <tbb/task_group.h>
 
@@ -267,7 +267,7 @@ void binaryRows(const Mesh& mesh, std::size_t nv, const Sink& sink, const Fail& 
         return rows * fStride;
     };
     // Two buffers when another thread can fill one meanwhile; else one, still in cache when refilled.
-    const bool overlap = threads_internal::threadsInUse() > 1;
+    const bool overlap = threadsInUse() > 1;
     // What the task writes lives outside the loop and before the task group, whose destructor
     // waits for the task when the sink throws.
     std::array<std::vector<char>, 2> buffers;

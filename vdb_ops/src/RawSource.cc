@@ -1,6 +1,6 @@
 // isouq: raw scans, `name_XxYxZ_dtype.raw` (SPEC §8; docs/inputs.md).
 #include "SourcesInternal.h"
-#include "Threads.h"
+#include "isouq/Threads.h"
 
 #include "isouq/Bricks.h"
 
@@ -163,7 +163,7 @@ LoadedVolume loadRawArray(const RawSlabReader& reader, const VolumeRequest& requ
     openvdb::util::NullInterrupter* interrupter)
 {
     const int nz = reader.dims().z();
-    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
+    checkLayersFit(reader, threadsInUse(), request.input);
     const auto [isovalue, source] = rawIsovalue(request, reader.type(),
         [&](const Range* range) { return rawStats(reader, 0, nz, range); });
     LoadedVolume volume = denseVolume(
@@ -278,7 +278,7 @@ DensePiece loadRawArrayPiece(const RawSlabReader& reader, const VolumeRequest& r
     openvdb::util::NullInterrupter* interrupter)
 {
     const Coord dims = reader.dims();
-    checkLayersFit(reader, threads_internal::threadsInUse(), request.input);
+    checkLayersFit(reader, threadsInUse(), request.input);
     const int pieces = comm.size(), piece = comm.rank(), layers = (dims.z() + kBlock - 1) / kBlock;
     const int l0 = firstLayerOf(layers, piece, pieces), l1 = firstLayerOf(layers, piece + 1, pieces);
     const int z0 = std::min(l0 * kBlock, dims.z()), z1 = std::min(l1 * kBlock, dims.z());

@@ -196,7 +196,7 @@ LoadedVolume loadRawArray(const RawSlabReader& reader, const VolumeRequest& requ
     openvdb::util::NullInterrupter* interrupter);
 
 /// checkLayersFit for a raw scan, which @a workers sparsifiers read at once (sparsifyRaw: one
-/// per thread in use, threads_internal::threadsInUse(), which counts -j).
+/// per thread in use, threadsInUse(), which counts -j).
 void checkLayersFit(const RawSlabReader& reader, int workers, const std::string& input);
 
 /// What Otsu's threshold needs from the slices [z0, z1) of a raw scan; parts of a volume add up

@@ -8,7 +8,7 @@
 
 #include "FreshPages.h"
 #include "Memory.h"
-#include "Threads.h"
+#include "isouq/Threads.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
@@ -789,7 +789,7 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
     const LayerInserter insert{*result.tree, bx};
     std::mutex treeMutex;
     std::atomic<int> layersDone{0};
-    const int threads = threads_internal::threadsInUse();
+    const int threads = threadsInUse();
     LayerRuns runs(layer0, layer1, threads);
     withRawSamples(reader.type(), [&](auto sample) {
         using W = decltype(sample);

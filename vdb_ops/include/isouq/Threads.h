@@ -1,4 +1,5 @@
-// isouq (internal): how many threads a parallel loop started here will get.
+// isouq: how many threads a parallel loop started here will get (the CLI's -j, the summary's
+// ranks block).
 #pragma once
 
 #include <tbb/global_control.h>
@@ -7,7 +8,7 @@
 #include <algorithm>
 #include <cstddef>
 
-namespace isouq::threads_internal {
+namespace isouq {
 
 /// The threads of the current arena, as limited by a tbb::global_control (the CLI's -j), which
 /// this_task_arena::max_concurrency() alone does not see.
@@ -17,4 +18,4 @@ inline int threadsInUse()
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
 }
 
-} // namespace isouq::threads_internal
+} // namespace isouq
