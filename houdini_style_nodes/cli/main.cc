@@ -229,6 +229,8 @@ int listNodes(bool json, bool markdown)
     return 0;
 }
 
+constexpr const char* kThreadsHelp = "Worker threads (0: all cores; under MPI, the cores shared among a machine's ranks)";
+
 } // namespace
 
 int isouq_cli_main(int argc, char** argv)
@@ -276,7 +278,7 @@ int isouq_cli_main(int argc, char** argv)
     mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply or .vtp)");
     mesh->add_option("--save-graph", saveGraph,
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
-    mesh->add_option("--threads,-j", threads, "Worker threads (0: all cores; under MPI, the cores shared among a machine's ranks)")->check(CLI::Range(0, 4096));
+    mesh->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, 4096));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     isouq::nodes::SequenceRequest sequence;
     auto* frames = mesh->add_option("--frames", sequence.frames,
@@ -304,7 +306,7 @@ int isouq_cli_main(int argc, char** argv)
     CLI::App* run = app.add_subcommand("run", "Run a JSON node graph");
     run->add_option("GRAPH", graphPath, "Graph file (.json)")->required();
     run->add_option("--out-dir,-d", outDir, "Folder for relative output paths (default: the current one)");
-    run->add_option("--threads,-j", threads, "Worker threads (0: all cores; under MPI, the cores shared among a machine's ranks)")->check(CLI::Range(0, 4096));
+    run->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, 4096));
     run->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     run->footer(kRunFooter);
 
