@@ -196,12 +196,15 @@ void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std:
     using LeafT = openvdb::FloatTree::LeafNodeType;
     constexpr std::size_t kMaskWords = LeafT::NodeMaskType::WORD_COUNT;
     const int pieces = comm.size(), piece = comm.rank();
-    // This piece's own requests take the leaves out of its tree, uncopied.
+    // This piece's own requests take the leaves out of its tree, uncopied. Stolen from the root:
+    // the tree's stealNode also clears its accessors' caches (none), 0.6 us a call, about 60 ms
+    // for the 1 GiB scan's 90 000 leaves at -np 1.
     openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(into);
+    const auto steal = [&from](const Coord& o) { return from.root().stealNode<LeafT>(o, 0.0f, false); };
     const Words& own = requests[std::size_t(piece)];
     for (std::size_t i = 0; i < own.size(); i += 3) {
         const Coord o{int(own[i]), int(own[i + 1]), int(own[i + 2])};
-        if (LeafT* leaf = from.stealNode<LeafT>(o, 0.0f, false)) acc.addLeaf(leaf);
+        if (LeafT* leaf = steal(o)) acc.addLeaf(leaf);
         else acc.addTile(/*level=*/1, o, from.getValue(o), /*active=*/false);
     }
     // How many other pieces ask for each leaf left in the tree: it is freed when the last has it.
@@ -240,7 +243,7 @@ void gatherBlocks(openvdb::FloatTree& from, openvdb::FloatTree& into, const std:
                     answer.resize(at + LeafT::SIZE / 2);
                     std::memcpy(answer.data() + at, leaf->buffer().data(), LeafT::SIZE * sizeof(float));
                     if (const auto left = askedFor.find(o); left != askedFor.end() && --left->second == 0) {
-                        delete from.stealNode<LeafT>(o, 0.0f, false);
+                        delete steal(o);
                         askedFor.erase(left);
                     }
                 } else {
