@@ -2,9 +2,11 @@
 
 #include <isouq/MeshIO.h>
 
+#include <algorithm>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <mutex>
 
 namespace isouq::cli {
@@ -28,9 +30,14 @@ extern "C" void onSignal(int signal)
 
 } // namespace
 
-ProgressInterrupter::ProgressInterrupter(bool show) : mShow(show)
+ProgressInterrupter::ProgressInterrupter(ProgressStyle style) : mStyle(style)
 {
     for (int signal : kSignals) std::signal(signal, onSignal);
+    if (const char* delay = std::getenv("ISOUQ_PROGRESS_SECONDS")) {
+        char* end = nullptr;
+        const double seconds = std::strtod(delay, &end);
+        if (end != delay && *end == '\0' && seconds >= 0 && seconds < 1e9) mLineDelay = seconds;
+    }
 }
 
 // The handlers stay installed: a second signal while the run unwinds must still clean up and
@@ -53,19 +60,26 @@ void ProgressInterrupter::start(const char* name)
     mStage = name ? name : "";
     mStageStart = std::chrono::steady_clock::now();
     mLastPercent = -2;
+    mLastTenth = 0;
     draw(0);
 }
 
 void ProgressInterrupter::end()
 {
     std::lock_guard<std::mutex> lock(sDrawMutex);
+    if (mStyle == ProgressStyle::Lines && mLastTenth > 0) {
+        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - mStageStart).count();
+        std::fprintf(stderr, "isouq: %s%s done (%.1f s)\n", mPrefix.c_str(), mStage.c_str(), seconds);
+        std::fflush(stderr);
+        return;
+    }
     draw(100);
     clearLine();
 }
 
 bool ProgressInterrupter::wasInterrupted(int percent)
 {
-    if (percent >= 0 && mShow) {
+    if (percent >= 0 && mStyle != ProgressStyle::None) {
         // Called from worker threads: draw at most every 100 ms, never block a worker.
         std::unique_lock<std::mutex> lock(sDrawMutex, std::try_to_lock);
         if (lock.owns_lock()) draw(percent);
@@ -75,7 +89,8 @@ bool ProgressInterrupter::wasInterrupted(int percent)
 
 void ProgressInterrupter::draw(int percent)
 {
-    if (!mShow || percent == mLastPercent) return;
+    if (mStyle == ProgressStyle::Lines) return drawLine(percent);
+    if (mStyle != ProgressStyle::Bar || percent == mLastPercent) return;
     const auto now = std::chrono::steady_clock::now();
     if (percent != 0 && percent != 100 && now - mLastDraw < std::chrono::milliseconds(100)) return;
     mLastDraw = now;
@@ -88,9 +103,22 @@ void ProgressInterrupter::draw(int percent)
     std::fflush(stderr);
 }
 
+// A line at each tenth the stage reaches once it has run mLineDelay seconds: at most ten a stage,
+// none for a short run.
+void ProgressInterrupter::drawLine(int percent)
+{
+    const int tenth = std::max(0, std::min(percent, 100)) / 10;
+    if (mStage.empty() || tenth <= mLastTenth || tenth == 10) return;
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - mStageStart).count();
+    if (seconds < mLineDelay) return;
+    mLastTenth = tenth;
+    std::fprintf(stderr, "isouq: %s%s %d%% (%.1f s)\n", mPrefix.c_str(), mStage.c_str(), 10 * tenth, seconds);
+    std::fflush(stderr);
+}
+
 void ProgressInterrupter::clearLine()
 {
-    if (!mShow) return;
+    if (mStyle != ProgressStyle::Bar) return;
     std::fprintf(stderr, "\r%*s\r", 60 + int(mPrefix.size()), "");
     std::fflush(stderr);
 }

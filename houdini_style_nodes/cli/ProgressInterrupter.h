@@ -1,6 +1,7 @@
-// isouq CLI: an OpenVDB interrupter that draws a progress bar with stage names on a terminal
-// and turns Ctrl-C, SIGTERM and SIGHUP into a cancellation (HoudiniInterrupter-style; STYLE
-// "Interrupters"; SPEC §10 "Errors"): the run stops, writes nothing and exits 128 + signal.
+// isouq CLI: an OpenVDB interrupter that shows progress with stage names (a bar on a terminal,
+// lines in an MPI job's log) and turns Ctrl-C, SIGTERM and SIGHUP into a cancellation
+// (HoudiniInterrupter-style; STYLE "Interrupters"; SPEC §10 "Errors"): the run stops, writes
+// nothing and exits 128 + signal.
 #pragma once
 
 #include <openvdb/util/NullInterrupter.h>
@@ -10,11 +11,17 @@
 
 namespace isouq::cli {
 
+/// How progress shows on stderr: not at all (--quiet, a pipe, the ranks but 0), as a bar redrawn
+/// in place (a terminal), or as lines (rank 0 of an MPI job, whose stderr the launcher pipes into
+/// a terminal or a batch log alike): "isouq: Meshing 40% (12.3 s)" at each tenth of a stage once
+/// it has run ISOUQ_PROGRESS_SECONDS (10 unless set), then "isouq: Meshing done (31.0 s)".
+enum class ProgressStyle { None, Bar, Lines };
+
 class ProgressInterrupter final : public openvdb::util::NullInterrupter {
 public:
-    /// @a show: draw the bar (a terminal and not --quiet). Installs the SIGINT, SIGTERM and
-    /// SIGHUP handlers; a second signal removes the temporary files and ends the process.
-    explicit ProgressInterrupter(bool show);
+    /// Installs the SIGINT, SIGTERM and SIGHUP handlers; a second signal removes the temporary
+    /// files and ends the process.
+    explicit ProgressInterrupter(ProgressStyle style);
     ~ProgressInterrupter() override;
 
     void start(const char* name = nullptr) override;
@@ -31,11 +38,14 @@ public:
 
 private:
     void draw(int percent);
+    void drawLine(int percent);
     void clearLine();
 
-    bool mShow;
+    ProgressStyle mStyle;
+    double mLineDelay = 10; ///< seconds of a stage before its first line (ProgressStyle::Lines)
     std::string mStage, mPrefix;
     int mLastPercent = -2;
+    int mLastTenth = 0; ///< the tenth of the stage that the last line reported; 0: none yet
     std::chrono::steady_clock::time_point mStageStart, mLastDraw;
 };
 

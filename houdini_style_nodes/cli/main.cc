@@ -60,7 +60,8 @@ puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: 
 interrupted run (Ctrl-C, exit 130) leaves no partial file and never clobbers an existing one.
 The command runs a node graph (docs/nodes.md): --save-graph G.json writes it, and
 'isouq run G.json' from the same folder writes the same files.
-Under mpirun or srun the same command meshes on every rank into one file (docs/mpi.md).
+Under mpirun or srun the same command meshes on every rank into one file; rank 0 prints a
+progress line at each tenth of a stage that has run ISOUQ_PROGRESS_SECONDS (10) (docs/mpi.md).
 With an input of 16 MiB or more, isouq restarts itself once with glibc's malloc.hugetlb=1 and
 malloc.arena_max=1 (2 MiB memory pages for every thread: fewer page faults); ISOUQ_HUGE_PAGES=0
 turns that off (docs/mesher.md).
@@ -106,12 +107,18 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
 }
 
 /// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings. On
-/// MPI ranks (@a ranks) rank 0 draws and prints.
+/// MPI ranks (@a ranks) rank 0 shows progress (as lines when its stderr is the launcher's pipe)
+/// and prints.
 isouq::nodes::GraphResult runWithProgress(const isouq::nodes::Graph& graph, bool quiet,
     const isouq::nodes::Ranks* ranks)
 {
+    using isouq::cli::ProgressStyle;
     const bool root = !ranks || ranks->rank() == 0;
-    isouq::cli::ProgressInterrupter progress(root && !quiet && stderrIsTerminal());
+    const ProgressStyle style = !root || quiet ? ProgressStyle::None
+        : stderrIsTerminal()                   ? ProgressStyle::Bar
+        : ranks                                ? ProgressStyle::Lines
+                                               : ProgressStyle::None;
+    isouq::cli::ProgressInterrupter progress(style);
     isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress, {}, ranks);
     if (root) printNotes(result.warnings, quiet);
     return result;
@@ -180,7 +187,8 @@ struct MpiSession {
 /// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
 int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
 {
-    isouq::cli::ProgressInterrupter progress(!quiet && stderrIsTerminal());
+    isouq::cli::ProgressInterrupter progress(
+        !quiet && stderrIsTerminal() ? isouq::cli::ProgressStyle::Bar : isouq::cli::ProgressStyle::None);
     const auto start = std::chrono::steady_clock::now();
     std::vector<std::string> warnings;
     const auto onFrame = [&](std::size_t done, std::size_t total, int frame, const nlohmann::json& e) {

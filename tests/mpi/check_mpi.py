@@ -8,7 +8,8 @@ raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine 
 field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 32^3 with
 --hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic),
 scans with headers written here from the data's raw scans by nibabel, tifffile and pydicom
-(SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt.
+(SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt,
+threads (-j 0's share of the cores), progress (rank 0's progress lines).
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -428,6 +429,48 @@ def threads(args):
         print(f"np {args.np}, {cores} cores, {' '.join(flags) or 'no -j'}: {want} threads per rank")
 
 
+def progress(args):
+    """Rank 0 alone shows progress under mpirun, as lines (its stderr is the launcher's pipe):
+    a line at each tenth of a stage once it has run ISOUQ_PROGRESS_SECONDS, then one saying it is
+    done; none with -q, none in a short run at the default 10 s, none from one process into a pipe."""
+    work = os.path.join(args.work, f"progress_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    src, out = os.path.join(args.data, "engine_256x256x128_uint8.raw"), os.path.join(work, "p.ply")
+    line = re.compile(r"isouq: (Loading volume|Meshing) (\d+)% \(\d+\.\d s\)$")
+    done = re.compile(r"isouq: (Loading volume|Meshing) done \(\d+\.\d s\)$")
+
+    def mesh(launcher, seconds, flags=()):
+        env = dict(os.environ, ISOUQ_PROGRESS_SECONDS=seconds)
+        r = run(launcher + [args.cli, "mesh", src, "-o", out, "--isovalue", "71", "-j", "1"] + list(flags), env=env)
+        if r.returncode != 0:
+            sys.exit(f"{' '.join(launcher)} failed ({r.returncode}): {r.stderr}")
+        return [x for x in r.stderr.splitlines() if line.match(x) or done.match(x)]
+
+    lines = mesh(mpirun(args, args.np) + ["-x", "ISOUQ_PROGRESS_SECONDS"], "0")
+    stages, last = [], None
+    for x in lines:  # each stage: its tenths rising, then its done line
+        m = line.match(x)
+        if m:
+            if last is not None and (m.group(1) != last[0] or int(m.group(2)) <= last[1]):
+                sys.exit(f"np {args.np}: progress out of order at '{x}':\n" + "\n".join(lines))
+            last = (m.group(1), int(m.group(2)))
+        else:
+            if last is None or done.match(x).group(1) != last[0]:
+                sys.exit(f"np {args.np}: '{x}' without its stage's lines:\n" + "\n".join(lines))
+            stages.append(last[0])
+            last = None
+    # One load (every rank's would be np), then the mesher's count and fill passes.
+    if last is not None or stages.count("Loading volume") != 1 or not 1 <= stages.count("Meshing") <= 2:
+        sys.exit(f"np {args.np}: expected one rank's stages, each ended:\n" + "\n".join(lines))
+    for what, launcher, seconds, flags in (("-q", mpirun(args, args.np) + ["-x", "ISOUQ_PROGRESS_SECONDS"], "0", ["-q"]),
+                                           ("the default delay", mpirun(args, args.np), "10", []),
+                                           ("one process into a pipe", [], "0", [])):
+        if mesh(launcher, seconds, flags):
+            sys.exit(f"np {args.np}: progress lines with {what}")
+    print(f"np {args.np}: {len(lines)} progress lines from one rank ({', '.join(stages)}); none with -q, "
+          "the default delay or one process into a pipe")
+
+
 def main():
     ap = argparse.ArgumentParser()
     for k in ("cli", "mpirun", "case", "data", "work"):
@@ -468,6 +511,8 @@ def main():
         interrupt(args)
     elif args.case == "threads":
         threads(args)
+    elif args.case == "progress":
+        progress(args)
     else:
         sys.exit("unknown case " + args.case)
 

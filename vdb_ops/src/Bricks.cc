@@ -5,6 +5,7 @@
 #include "isouq/Bricks.h"
 
 #include "MeshPasses.h"
+#include "Stage.h"
 
 #include <tbb/enumerable_thread_specific.h>
 
@@ -121,11 +122,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
     const std::optional<CoordBBox> cellBox = meshedCellBox(dataBoundsOf(d.grid, settings), settings.brick);
     const std::size_t n = d.end - d.begin;
 
-    if (interrupter) interrupter->start("Meshing");
-    struct EndGuard {
-        openvdb::util::NullInterrupter* i;
-        ~EndGuard() { if (i) i->end(); }
-    } endGuard{interrupter};
+    const InterrupterStage stage(interrupter, "Meshing");
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(std::cref(d.grid.tree()), std::cref(blocks.index), 1);
     std::atomic<std::size_t> done{0};
 
@@ -245,11 +242,7 @@ void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
     const std::uint64_t vertices = vertexCount(), triangles = triangleCount();
     checkMeshFits(vertices, triangles, settings, provenance);
 
-    if (interrupter) interrupter->start("Meshing");
-    struct EndGuard {
-        openvdb::util::NullInterrupter* i;
-        ~EndGuard() { if (i) i->end(); }
-    } endGuard{interrupter};
+    const InterrupterStage stage(interrupter, "Meshing");
 
     const WorldMap toWorld(grid.transform());
     mesh.indexToWorld = toWorld.rowMajor();

@@ -21,6 +21,7 @@
 
 #include "isouq/Bricks.h"
 #include "isouq/GridMetadata.h"
+#include "Stage.h"
 
 #include <tbb/parallel_sort.h>
 
@@ -376,11 +377,7 @@ Mesh mergeHiddenFeatures(const openvdb::FloatGrid& grid, Mesh standard, const Me
         OPENVDB_THROW(openvdb::ValueError,
             "hidden features: the standard mesh needs provenance (edge_i edge_j edge_k edge_axis)");
 
-    if (interrupter) interrupter->start("Hidden features");
-    struct EndGuard {
-        openvdb::util::NullInterrupter* i;
-        ~EndGuard() { if (i) i->end(); }
-    } endGuard{interrupter};
+    const InterrupterStage stage(interrupter, "Hidden features");
 
     const float k = settings.isovalue;
     const bool threaded = settings.threaded;

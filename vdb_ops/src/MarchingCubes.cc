@@ -11,6 +11,7 @@
 // A vertex's global index is its block's offset plus the rank of its bit in the block's mask, so
 // the output never depends on the thread count and needs no hash map.
 #include "MeshPasses.h"
+#include "Stage.h"
 
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_scan.h>
@@ -78,11 +79,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     const bool flip = flipsTriangles(grid, settings);
     const bool provenance = settings.provenance || settings.uncertainty;
 
-    if (interrupter) interrupter->start("Meshing");
-    struct EndGuard {
-        openvdb::util::NullInterrupter* i;
-        ~EndGuard() { if (i) i->end(); }
-    } endGuard{interrupter};
+    const InterrupterStage stage(interrupter, "Meshing");
 
     // Small grids run serially: waking the worker threads for each pass costs more than a few
     // hundred blocks take (issue 12, "Small-grid latency").

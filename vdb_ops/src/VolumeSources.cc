@@ -1,6 +1,7 @@
 // isouq: volume inputs (SPEC §5, §8; design and measurements in docs/inputs.md): INPUT to the
 // source type that reads it.
 #include "SourcesInternal.h"
+#include "Stage.h"
 
 #include <algorithm>
 #include <cctype>
@@ -84,11 +85,7 @@ std::vector<std::string> volumeInputFiles(const std::string& input)
 LoadedVolume loadVolume(const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
     openvdb::initialize();
-    if (interrupter) interrupter->start("Loading volume");
-    struct EndGuard {
-        openvdb::util::NullInterrupter* p;
-        ~EndGuard() { if (p) p->end(); }
-    } guard{interrupter};
+    const InterrupterStage stage(interrupter, "Loading volume");
     LoadedVolume volume = loadSource(request, interrupter);
     volume.input = request.input;
     return volume;
@@ -98,6 +95,7 @@ DensePiece loadDensePiece(const VolumeRequest& request, const PieceComm& comm, o
 {
     namespace si = sources_internal;
     openvdb::initialize();
+    const InterrupterStage stage(interrupter, "Loading volume");
     DensePiece piece;
     if (const std::optional<si::FieldInput> field = si::fieldInput(request))
         piece = si::loadFieldPiece(*field, request, comm, interrupter);
