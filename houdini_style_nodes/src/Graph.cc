@@ -8,6 +8,10 @@
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
 
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
@@ -283,6 +287,18 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
 
 namespace {
 
+/// Gives the heap's free pages back to the kernel once a node's volume or mesh is freed (glibc's
+/// malloc_trim, about 1 ms after the 1 GiB scan's volume): the PLY's page cache and the next
+/// nodes then take pages the machine has already backed rather than fresh ones, which a VM's
+/// host backs on first touch at 0.5-1 GB/s, one vCPU at a time (bench/README.md "7 December
+/// 2026": the 1 GiB scan's PLY write after the last cook, -j 1, 0.40-0.53 -> 0.15-0.20 s).
+void returnFreedMemory()
+{
+#if defined(__GLIBC__)
+    malloc_trim(0);
+#endif
+}
+
 /// Cook times of every node upstream of @a n, by id, in running order (a walk of its inputs).
 nlohmann::json upstreamTimings(const Graph& graph, const std::vector<double>& cookMs, std::size_t n)
 {
@@ -411,7 +427,12 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
         // A kept mesh is shared, so a later takeMesh() copies it instead of changing it.
         if (std::find(keepMeshes.begin(), keepMeshes.end(), node.id) != keepMeshes.end() && values[n].count("mesh"))
             result.meshes[node.id] = values[n]["mesh"].mesh;
-        for (std::size_t m : freeAfter[n]) values[m].clear();
+        bool freedData = false;
+        for (std::size_t m : freeAfter[n]) {
+            for (const auto& [port, value] : values[m]) freedData |= value.volume || value.piece || value.mesh;
+            values[m].clear();
+        }
+        if (freedData) returnFreedMemory();
         for (std::size_t w = staged.size(); !ranks && w < writes.size(); ++w) {
             OutputBatch* into = staged.emplace_back(std::make_unique<OutputBatch>()).get();
             if (writes[w].early) stagers.run([into, stage = writes[w].stage] { stage(*into); });
