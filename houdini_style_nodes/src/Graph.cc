@@ -287,11 +287,25 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
 
 namespace {
 
-/// Gives the heap's free pages back to the kernel once a node's volume or mesh is freed (glibc's
-/// malloc_trim, about 1 ms after the 1 GiB scan's volume): the PLY's page cache and the next
-/// nodes then take pages the machine has already backed rather than fresh ones, which a VM's
-/// host backs on first touch at 0.5-1 GB/s, one vCPU at a time (bench/README.md "7 December
-/// 2026": the 1 GiB scan's PLY write after the last cook, -j 1, 0.40-0.53 -> 0.15-0.20 s).
+/// Whether clearing @a value frees a large volume or mesh (one nothing else holds, such as a
+/// Python caller's grid): at least 32 MiB of leaf values, or of positions and triangles.
+bool freesLargeData(const NodeValue& value)
+{
+    constexpr std::uint64_t kLarge = std::uint64_t(32) << 20;
+    std::uint64_t bytes = 0;
+    if (value.volume && value.volume.use_count() == 1 && value.volume->grid && value.volume->grid.use_count() == 1)
+        bytes += value.volume->grid->tree().leafCount() * std::uint64_t(openvdb::FloatTree::LeafNodeType::SIZE * sizeof(float));
+    if (value.mesh && value.mesh.use_count() == 1)
+        bytes += 12 * std::uint64_t(value.mesh->mesh.vertexCount() + value.mesh->mesh.triangleCount());
+    return bytes >= kLarge;
+}
+
+/// Gives the heap's free pages back to the kernel once a large volume or mesh is freed (glibc's
+/// malloc_trim, about 1 ms after the 1 GiB scan's volume; not for small ones, as in Blender's
+/// live mode, whose heap is Blender's): the PLY's page cache and the next nodes then take pages
+/// the machine has already backed rather than fresh ones, which a VM's host backs on first
+/// touch at 0.3-1 GB/s (bench/README.md "7 December 2026": the 1 GiB scan's PLY write after
+/// the last cook, -j 1, 0.40-0.53 -> 0.15-0.20 s).
 void returnFreedMemory()
 {
 #if defined(__GLIBC__)
@@ -429,7 +443,7 @@ GraphResult runGraph(const Graph& graph, openvdb::util::NullInterrupter* interru
             result.meshes[node.id] = values[n]["mesh"].mesh;
         bool freedData = false;
         for (std::size_t m : freeAfter[n]) {
-            for (const auto& [port, value] : values[m]) freedData |= value.volume || value.piece || value.mesh;
+            for (const auto& [port, value] : values[m]) freedData |= freesLargeData(value);
             values[m].clear();
         }
         if (freedData) returnFreedMemory();
