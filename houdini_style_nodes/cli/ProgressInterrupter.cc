@@ -1,5 +1,6 @@
 #include "ProgressInterrupter.h"
 
+#include <isouq/Errors.h>
 #include <isouq/MeshIO.h>
 
 #include <algorithm>
@@ -8,6 +9,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <mutex>
+#include <string>
 
 namespace isouq::cli {
 namespace {
@@ -32,12 +34,15 @@ extern "C" void onSignal(int signal)
 
 ProgressInterrupter::ProgressInterrupter(ProgressStyle style) : mStyle(style)
 {
-    for (int signal : kSignals) std::signal(signal, onSignal);
-    if (const char* delay = std::getenv("ISOUQ_PROGRESS_SECONDS")) {
+    if (const char* delay = std::getenv("ISOUQ_PROGRESS_SECONDS"); delay && *delay) {
         char* end = nullptr;
         const double seconds = std::strtod(delay, &end);
-        if (end != delay && *end == '\0' && seconds >= 0 && seconds < 1e9) mLineDelay = seconds;
+        if (end == delay || *end != '\0' || !(seconds >= 0 && seconds < 1e9))
+            throw InputError("ISOUQ_PROGRESS_SECONDS is '" + std::string(delay) +
+                             "'; give the seconds a stage runs before its progress lines, such as 10 or 0.5");
+        mLineDelay = seconds;
     }
+    for (int signal : kSignals) std::signal(signal, onSignal);
 }
 
 // The handlers stay installed: a second signal while the run unwinds must still clean up and

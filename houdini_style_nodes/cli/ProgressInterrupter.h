@@ -20,7 +20,8 @@ enum class ProgressStyle { None, Bar, Lines };
 class ProgressInterrupter final : public openvdb::util::NullInterrupter {
 public:
     /// Installs the SIGINT, SIGTERM and SIGHUP handlers; a second signal removes the temporary
-    /// files and ends the process.
+    /// files and ends the process. Throws InputError if ISOUQ_PROGRESS_SECONDS is set but is not
+    /// a number of seconds (0 or more).
     explicit ProgressInterrupter(ProgressStyle style);
     ~ProgressInterrupter() override;
 

@@ -117,6 +117,16 @@ TEST_CASE("CLI hostile: wrong successes are errors now", "[cli][hostile]")
         writeGrid(dir / "const.vdb", grid);
         requireRefused(runCli("mesh const.vdb -q -o out.ply", dir), "no default isovalue", {out});
     }
+    SECTION("a progress delay that is not a number of seconds")
+    {
+        for (const char* delay : {"abc", "-1", "10s", "nan", "1e300"})
+            requireRefused(runCli("mesh field:sphere -q -o out.ply", dir,
+                               std::string("ISOUQ_PROGRESS_SECONDS=") + quote(delay) + " " + ISOUQ_CLI),
+                "ISOUQ_PROGRESS_SECONDS", {out});
+        // Set but empty is unset, as for most variables.
+        CHECK(runCli("mesh field:sphere --resolution 16 -q -o out.ply", dir, "ISOUQ_PROGRESS_SECONDS= " ISOUQ_CLI).status == 0);
+        CHECK(fs::exists(out));
+    }
     SECTION("a graph path with an embedded NUL")
     {
         writeFile(dir / "g.json", R"({"nodes": [{"id": "r", "type": "read_volume", "parms": {"input": "field:sphere"}},

@@ -122,7 +122,8 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
     const std::optional<CoordBBox> cellBox = meshedCellBox(dataBoundsOf(d.grid, settings), settings.brick);
     const std::size_t n = d.end - d.begin;
 
-    const InterrupterStage stage(interrupter, "Meshing");
+    // Its own stage: under MPI the ranks exchange the counts before the fill ("Meshing").
+    const InterrupterStage stage(interrupter, "Counting triangles");
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(std::cref(d.grid.tree()), std::cref(blocks.index), 1);
     std::atomic<std::size_t> done{0};
 
