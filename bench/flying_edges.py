@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""ParaView's FlyingEdges on a raw scan already in memory (bench/README.md "Dense scans"):
+"""ParaView's FlyingEdges on a raw scan already in memory (bench/README.md "Loading a dense scan"):
 reads name_XxYxZ_uint8.raw whole with numpy, wraps it as vtkImageData without a copy, and
 times vtkFlyingEdges3D (ParaView 5.11's VTK, Debian python3-paraview) at the given isovalue
 with the given thread counts. Prints one markdown row per thread count: read seconds, contour

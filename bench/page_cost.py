@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""What a fresh page costs on this machine (bench/README.md "4 December 2026" and "4-5
-December 2026"; docs/mesher.md "Memory pages"): faults in MIB MiB of new anonymous memory, one write per
+"""What a fresh page costs on this machine (bench/journal/2026-12-04.md, 05:50
+and 23:43; docs/mesher.md "Memory pages"): faults in MIB MiB of new anonymous memory, one write per
 4 KiB page, in 4 KiB pages and then advised MADV_HUGEPAGE (2 MiB pages), by one thread and by
 THREADS threads (each its own MIB / THREADS, at once), each ROUNDS times, once straight after the
 last run and once after PAUSE seconds (a virtual machine's balloon may hand freed memory back to

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Thread scaling of a whole `isouq mesh` run with warm memory (issue 15; bench/README.md
-"5 December 2026"): the graph `isouq mesh SCAN --linear-only --save-graph` writes, run by the
+"""Thread scaling of a whole `isouq mesh` run with warm memory (issue 15; bench/journal/
+2026-12-05.md, 02:36): the graph `isouq mesh SCAN --linear-only --save-graph` writes, run by the
 `isouq` Python module again and again in one process, at 0 threads (every core) and 1,
 interleaved, with glibc's malloc told to keep what it frees (glibc.malloc.mmap_max=0 and a
 trim threshold of 64 GiB, beside the CLI's own huge-page tunables). From the second round on,

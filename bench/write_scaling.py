@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How fast this machine writes one large file from one process and from two (issue 15,
-bench/README.md "Quiet machine, 3 December 2026, 11:20-11:35 UTC"): the floor under MPI's
+bench/journal/2026-12-03.md, 11:20): the floor under MPI's
 strong scaling, which writes one PLY from every rank.
 
     /usr/bin/python3 bench/write_scaling.py DIR [BYTES]

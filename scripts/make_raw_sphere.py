@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Writes a sphere-like uint8 scan N^3 (default 1024) as `sphere_NxNxN_uint8.raw` for the
-loader benchmark (bench/README.md "Dense scans"): a blurred ball of radius 0.4 N (200 inside,
+loader benchmark (bench/README.md "Loading a dense scan"): a blurred ball of radius 0.4 N (200 inside,
 20 outside, tanh edge of 2 voxels) with deterministic noise of +-3, written slab by slab so the
 whole array is never in memory."""
 import sys

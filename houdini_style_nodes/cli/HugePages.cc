@@ -60,7 +60,7 @@ void useHugePagesForLargeInputs(int argc, char** argv)
     // The heap grows 16 MiB ahead, which the loaders fault in outside that lock
     // (vdb_ops/src/FreshPages.h populateHeapTop). (Setting top_pad also fixes glibc's mmap
     // threshold at 128 KiB; raising it to 32 MiB too made writing sphere800's PLY under MPI
-    // 0.6-0.9 s slower, bench/README.md "4-5 December 2026".)
+    // 0.6-0.9 s slower, bench/journal/2026-12-04.md, 23:43.)
     std::string value = (old.empty() ? "" : old + ":") + "glibc.malloc.hugetlb=1";
     if (old.find("glibc.malloc.arena_max") == std::string::npos) value += ":glibc.malloc.arena_max=1";
     if (old.find("glibc.malloc.top_pad") == std::string::npos) value += ":glibc.malloc.top_pad=16777216";

@@ -304,7 +304,7 @@ bool freesLargeData(const NodeValue& value)
 /// malloc_trim, about 1 ms after the 1 GiB scan's volume; not for small ones, as in Blender's
 /// live mode, whose heap is Blender's): the PLY's page cache and the next nodes then take pages
 /// the machine has already backed rather than fresh ones, which a VM's host backs on first
-/// touch at 0.3-1 GB/s (bench/README.md "7 December 2026": the 1 GiB scan's PLY write after
+/// touch at 0.3-1 GB/s (bench/journal/2026-12-07.md: the 1 GiB scan's PLY write after
 /// the last cook, -j 1, 0.40-0.53 -> 0.15-0.20 s).
 void returnFreedMemory()
 {

@@ -47,7 +47,7 @@ namespace {
 /// leaf) takes one pass of min, max and x - x (NaN once x is not finite) over its values, in
 /// lanes across a fully active leaf so that the compiler vectorises it; only a leaf with a
 /// non-finite value is walked value by value, for the first one's voxel. (At N = 1024 the
-/// value iterator took 150 ms: bench/README.md "4-5 December 2026".)
+/// value iterator took 150 ms: bench/journal/2026-12-04.md, 23:43.)
 void scanLeaf(const openvdb::FloatTree::LeafNodeType& leaf, std::uint64_t leafIndex, ActiveValueScan& scan)
 {
     using Leaf = openvdb::FloatTree::LeafNodeType;

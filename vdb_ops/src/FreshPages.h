@@ -4,7 +4,7 @@
 // MADV_POPULATE_WRITE (one call for a whole range, which writes nothing) about 1 us, and a 2 MiB
 // page 0.12-0.17 ms (bench/page_cost.py). Used by the mesher (one process and bricks) for every
 // per-block array, mask list and output column it allocates afresh: at N = 1024 a call's page
-// faults went from about 5 300 to 185 (bench/README.md "4 December 2026, 11:42").
+// faults went from about 5 300 to 185 (bench/journal/2026-12-04.md, 11:42).
 #pragma once
 
 #include <tbb/parallel_for.h>
@@ -88,7 +88,7 @@ inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
         const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(range.data) + range.bytes, page);
         // Malloc's heap in huge pages is advised already; advising it again takes the address
         // space's write lock, which waits for the other threads' faults in progress (8-15 ms a
-        // call on the 1 GiB raw scan, while a core idles: bench/README.md "4-5 December 2026").
+        // call on the 1 GiB raw scan, while a core idles: bench/journal/2026-12-04.md, 23:43).
         if (range.bytes >= kHugeFrom && !mallocHasHugePages()) {
             const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
             if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
@@ -103,7 +103,7 @@ inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
     };
     // Isolated: a caller's task (one output column of several) waits for its own pieces only and
     // does not take up a sibling task meanwhile, which ran the columns one after the other (at
-    // N = 1024, 15 ms instead of 8: bench/README.md "4 December 2026, 15:02").
+    // N = 1024, 15 ms instead of 8: bench/journal/2026-12-04.md, 15:02).
     if (threaded && pieces.size() > 1)
         tbb::this_task_arena::isolate([&] { tbb::parallel_for(std::size_t(0), pieces.size(), populate); });
     else for (std::size_t i = 0; i < pieces.size(); ++i) populate(i);
@@ -130,7 +130,7 @@ constexpr bool kSanitized =
 /// (the CLI's restart: docs/mesher.md "Memory pages"), faults in that spare top of the heap now,
 /// outside malloc's lock. Else the allocation that first reaches a fresh 2 MiB page zeroes it
 /// while holding the one arena's lock, and every other thread's allocation waits: loading the
-/// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/README.md "4-5 December 2026"). For loops that
+/// 1 GiB raw scan, 45 waits of 1-4 ms a run (bench/journal/2026-12-04.md, 23:43). For loops that
 /// allocate many small blocks on every thread (a scan's leaves); at most top_pad bytes more are
 /// resident, most of which the next allocations use.
 inline void populateHeapTop()
@@ -154,8 +154,8 @@ inline void populateHeapTop()
 
 /// The allocator of PageVector: a request of 1 MiB or more is mapped on its own in whole 2 MiB
 /// pages, advised MADV_HUGEPAGE, so that faulting it in costs a huge-page fault per 2 MiB rather
-/// than 512 small ones (the mesher's per-block arrays of 1-2 MB at N = 1024: bench/README.md
-/// "4 December 2026, 15:02"). At most one 2 MiB page per array is partly unused. Smaller
+/// than 512 small ones (the mesher's per-block arrays of 1-2 MB at N = 1024: bench/journal/
+/// 2026-12-04.md, 15:02). At most one 2 MiB page per array is partly unused. Smaller
 /// requests come from malloc, and so does every request under a sanitizer (which checks heap
 /// arrays) or when malloc's heap is in huge pages already: it then reuses what the run freed
 /// before (the 1 GiB raw scan's peak was 5-10 MB higher with the arrays mapped on their own).

@@ -718,7 +718,7 @@ namespace {
 /// (kMinSplit layers or more left), so no core waits long at the end, while the kHalo slices
 /// either side of a run are read again only at the few splits. (Fixed runs of 1/(2 threads) of
 /// what was left, down to 2 layers, read 78 slices twice on the 1 GiB raw scan: 25-40 ms of a
-/// -j 0 load, bench/README.md "5 December 2026"; 8 equal runs left a core idle 40-100 ms.)
+/// -j 0 load, bench/journal/2026-12-05.md; 8 equal runs left a core idle 40-100 ms.)
 class LayerRuns {
 public:
     struct Run {

@@ -77,8 +77,9 @@ public:
     template <typename GridT>
     void operator()(const GridT& grid, Mesh& mesh, openvdb::util::NullInterrupter* interrupter = nullptr);
 
-    /// Wall milliseconds of the last call's stages (bench/README.md "Thread scaling"): the block
-    /// set, the side and count passes, the serial prefix sums, the output allocation, the fill.
+    /// Wall milliseconds of the last call's stages (bench/README.md "Threads: where the second core
+    /// went"): the block set, the side and count passes, the serial prefix sums, the output
+    /// allocation, the fill.
     struct StageTimes {
         double blocks = 0, sides = 0, count = 0, offsets = 0, allocate = 0, fill = 0;
     };
