@@ -43,6 +43,17 @@ double percentileOf(const std::vector<double>& sorted, double p)
     return sorted[lo] + (pos - double(lo)) * (sorted[lo + 1] - sorted[lo]);
 }
 
+/// The finite values of a measure, ascending (the percentiles of C1 and C4).
+std::vector<double> sortedFinite(const std::vector<float>& values)
+{
+    std::vector<double> sorted;
+    sorted.reserve(values.size());
+    for (float v : values)
+        if (std::isfinite(v)) sorted.push_back(v);
+    std::sort(sorted.begin(), sorted.end());
+    return sorted;
+}
+
 /// C1: `above` = measure > threshold (strictly; NaN is never above), threshold given or the
 /// percentile of the finite values.
 void cookThreshold(CookContext& ctx)
@@ -54,11 +65,7 @@ void cookThreshold(CookContext& ctx)
     std::vector<std::uint8_t>& above = out->mesh.vertexAttributes.add<std::uint8_t>(col::kAbove, out->mesh.vertexCount());
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
 
-    std::vector<double> sorted;
-    sorted.reserve(values.size());
-    for (float v : values)
-        if (std::isfinite(v)) sorted.push_back(v);
-    std::sort(sorted.begin(), sorted.end());
+    const std::vector<double> sorted = sortedFinite(values);
     const bool byPercentile = p.getString("mode") == "percentile";
     const double threshold = byPercentile ? percentileOf(sorted, p.getFloat("percentile")) : p.getFloat("value");
 
@@ -94,11 +101,7 @@ void cookColorMap(CookContext& ctx)
     const std::string measure = p.getString("measure");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
-    std::vector<double> sorted;
-    sorted.reserve(values.size());
-    for (float v : values)
-        if (std::isfinite(v)) sorted.push_back(v);
-    std::sort(sorted.begin(), sorted.end());
+    const std::vector<double> sorted = sortedFinite(values);
     const bool given = p.isSet("range");
     double lo = 0.0, hi = 0.0;
     if (given) {

@@ -532,18 +532,12 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     for (const Words& w : columnChunks)
         for (std::size_t c = 0; c < columns.size(); ++c) stats[c].join(sumsOf(w.data() + 5 * c));
 
-    const MeshTopologyStats topo = topologyOnRanks(ranks, piece, local);
+    MeshTopologyStats topo = topologyOnRanks(ranks, piece, local);
     if (ranks.rank() != 0) return nlohmann::json::object();
-    // The keys of summarizeMesh.
-    nlohmann::json s;
-    s["vertices"] = totalVertices;
-    s["triangles"] = where.triangleBegin.back();
-    s["boundary_edges"] = topo.boundaryEdges;
-    s["non_manifold_edges"] = topo.nonManifoldEdges;
-    s["components"] = topo.components;
-    s["degenerate_triangles"] = geometry.degenerate;
-    s["area"] = geometry.area;
-    s["enclosed_volume"] = std::abs(geometry.signedVolume);
+    topo.degenerateTriangles = geometry.degenerate;
+    topo.area = geometry.area;
+    topo.enclosedVolume = std::abs(geometry.signedVolume);
+    nlohmann::json s = summaryCounts(totalVertices, where.triangleBegin.back(), topo);
     for (std::size_t c = 0; c < columns.size(); ++c) s[names[c]] = stats[c].result();
     return s;
 }

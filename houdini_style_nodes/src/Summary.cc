@@ -46,18 +46,17 @@ nlohmann::json statistics(const std::vector<float>& values)
     }).result();
 }
 
+nlohmann::json summaryCounts(std::size_t vertices, std::size_t triangles, const MeshTopologyStats& topo)
+{
+    return {{"vertices", vertices}, {"triangles", triangles}, {"boundary_edges", topo.boundaryEdges},
+        {"non_manifold_edges", topo.nonManifoldEdges}, {"components", topo.components},
+        {"degenerate_triangles", topo.degenerateTriangles}, {"area", topo.area},
+        {"enclosed_volume", topo.enclosedVolume}};
+}
+
 nlohmann::json summarizeMesh(const Mesh& mesh)
 {
-    const MeshTopologyStats topo = measureTopology(mesh);
-    nlohmann::json s;
-    s["vertices"] = mesh.positions.size();
-    s["triangles"] = mesh.triangles.size();
-    s["boundary_edges"] = topo.boundaryEdges;
-    s["non_manifold_edges"] = topo.nonManifoldEdges;
-    s["components"] = topo.components;
-    s["degenerate_triangles"] = topo.degenerateTriangles;
-    s["area"] = topo.area;
-    s["enclosed_volume"] = topo.enclosedVolume;
+    nlohmann::json s = summaryCounts(mesh.positions.size(), mesh.triangles.size(), measureTopology(mesh));
     for (const ColumnInfo& c : columnTable())
         if (const auto* column = c.summary ? mesh.vertexAttributes.find<float>(c.name) : nullptr)
             s[std::string(c.name)] = statistics(*column);

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <isouq/MeshAttributes.h>
+#include <isouq/MeshTopology.h>
 
 #include <nlohmann/json.hpp>
 
@@ -29,5 +30,9 @@ nlohmann::json statistics(const std::vector<float>& values);
 
 /// Counts, topology and statistics() of every per-vertex measure present (SPEC §6, §8).
 nlohmann::json summarizeMesh(const Mesh& mesh);
+
+/// The count and topology keys of summarizeMesh, from counts the caller has: one process's
+/// measureTopology, or the sums the MPI ranks carry (Pieces.h).
+nlohmann::json summaryCounts(std::size_t vertices, std::size_t triangles, const MeshTopologyStats& topo);
 
 } // namespace isouq::nodes
