@@ -199,7 +199,18 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
             for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
         out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total));
     }
-    if (const std::string problem = checkScalarVolume(grid, out.volume->isovalue, scan); !problem.empty())
+    // The active box of the whole grid: the union of the ranks' (a rank holds its own leaves and
+    // their halo, and every leaf is some rank's), empty where a rank holds none (more ranks than
+    // blocks with a surface).
+    openvdb::CoordBBox box;
+    const openvdb::CoordBBox local = grid.evalActiveVoxelBoundingBox();
+    const auto word = [](int v) { return std::uint64_t(std::int64_t(v)); };
+    for (const Words& w : ranks.allgather({word(local.min().x()), word(local.min().y()), word(local.min().z()),
+             word(local.max().x()), word(local.max().y()), word(local.max().z())})) {
+        const auto at = [&](int i) { return int(std::int64_t(w[std::size_t(i)])); };
+        box.expand(openvdb::CoordBBox(at(0), at(1), at(2), at(3), at(4), at(5)));
+    }
+    if (const std::string problem = checkScalarVolume(grid, out.volume->isovalue, scan, box); !problem.empty())
         throw InputError(problem);
     if (!dense) releaseMappedPages(request.input); // the scans loaded the rank's leaves
     return out;

@@ -6,7 +6,8 @@
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
 raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
 field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 32^3 with
---hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic),
+--hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic), few_blocks
+(field:sphere at 8^3 and an 8x8x64 scan with its surface in the top layers: ranks with nothing),
 scans with headers written here from the data's raw scans by nibabel, tifffile and pydicom
 (SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt,
 threads (-j 0's share of the cores), progress (rank 0's progress lines).
@@ -507,6 +508,13 @@ def main():
     elif args.case == "formula":
         compare(args, "formula", "formula:x*x+y*y+z*z-0.5+0.1*sin(9*x)", ["--resolution", "40", "--method", "cubic"],
                 dims=(40, 40, 40))
+    elif args.case == "few_blocks":  # ranks with no active voxel: a tiny field, a scan's surface in its top layers
+        compare(args, "few_blocks_field", "field:sphere", ["--resolution", "8"], dims=(8, 8, 8))
+        z, y, x = np.mgrid[0:64, 0:8, 0:8]
+        values = np.where((x - 3.5) ** 2 + (y - 3.5) ** 2 + (z - 59.5) ** 2 < 9, 200, 10).astype(np.uint8)
+        path = os.path.join(args.work, "top_8x8x64_uint8.raw")
+        values.tofile(path)
+        compare(args, "few_blocks_raw", path, ["--isovalue", "100"], dims=(8, 8, 64))
     elif args.case in SCANS:
         path, dims = write_scan(args, args.case)
         compare(args, args.case, path, ["--method", "cubic"] if args.case == "tiff" else [], dims=dims)

@@ -102,18 +102,17 @@ ActiveValueScan scanActiveValues(const openvdb::FloatGrid& grid,
 
 std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue)
 {
-    if (grid.tree().activeVoxelCount() == 0) return checkScalarVolume(grid, isovalue, ActiveValueScan());
-    return checkScalarVolume(grid, isovalue, scanActiveValues(grid));
+    const openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
+    if (box.empty()) return checkScalarVolume(grid, isovalue, ActiveValueScan(), box);
+    return checkScalarVolume(grid, isovalue, scanActiveValues(grid), box);
 }
 
 std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue,
-    const ActiveValueScan& scan)
+    const ActiveValueScan& scan, const openvdb::CoordBBox& box)
 {
     namespace di = diagnostics_internal;
     const std::string name = grid.getName().empty() ? "the grid" : "grid '" + grid.getName() + "'";
-    if (grid.tree().activeVoxelCount() == 0) {
-        return name + " has no active voxels or tiles: nothing to mesh";
-    }
+    if (box.empty()) return name + " has no active voxels or tiles: nothing to mesh";
     const openvdb::Vec3d voxel = grid.voxelSize();
     for (int a = 0; a < 3; ++a) {
         if (!(std::isfinite(voxel[a]) && voxel[a] > 0.0)) {
@@ -122,7 +121,6 @@ std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<floa
         }
     }
     // Vertices are float32 world positions: every corner of the active box must map into range.
-    const openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
     for (int corner = 0; corner < 8; ++corner) {
         const openvdb::Coord c((corner & 1 ? box.max() : box.min()).x(), (corner & 2 ? box.max() : box.min()).y(),
             (corner & 4 ? box.max() : box.min()).z());

@@ -36,8 +36,10 @@ struct ActiveValueScan {
 ActiveValueScan scanActiveValues(const openvdb::FloatGrid& grid,
     const std::function<bool(const openvdb::Coord&)>& leaves = {}, bool tiles = true);
 
-/// checkScalarVolume with the value scan already made (joined over pieces).
+/// checkScalarVolume with the value scan and the active voxels' bounding box (empty: nothing is
+/// active) already made, both of the whole grid when @a grid is a piece of it (joined over the
+/// pieces of SPEC §10 "MPI"; a piece may hold no active voxel).
 std::string checkScalarVolume(const openvdb::FloatGrid& grid, std::optional<float> isovalue,
-    const ActiveValueScan& scan);
+    const ActiveValueScan& scan, const openvdb::CoordBBox& activeBox);
 
 } // namespace isouq
