@@ -381,7 +381,7 @@ int isouq_cli_main(int argc, char** argv)
         return validateStatus;
     } catch (const isouq::InterruptedError&) {
         // On MPI ranks a rank that got no signal stops with the others, as Ctrl-C.
-        if (sPrintsErrors) std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
+        if (sPrintsErrors) std::fprintf(stderr, "isouq: interrupted; no output written\n");
         return isouq::cli::ProgressInterrupter::interrupted() ? isouq::cli::ProgressInterrupter::exitStatus() : 130;
     } catch (const std::filesystem::filesystem_error& e) {
         printError(e.what());
@@ -391,7 +391,7 @@ int isouq_cli_main(int argc, char** argv)
         return kExitBadInput;
     } catch (const std::exception& e) {
         if (isouq::cli::ProgressInterrupter::interrupted()) {
-            std::fprintf(stderr, "\nisouq: interrupted; no output written\n");
+            std::fprintf(stderr, "isouq: interrupted; no output written\n");
             return isouq::cli::ProgressInterrupter::exitStatus();
         }
         printError(e.what());

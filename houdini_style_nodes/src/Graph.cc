@@ -198,8 +198,9 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
                     break;
                 }
         }
+        // "a <- b": a reads b's output.
         std::string cycle;
-        for (std::size_t i = std::size_t(seenAt[n]); i < path.size(); ++i) cycle = raw[path[i]].id + " <- " + cycle;
+        for (std::size_t i = std::size_t(seenAt[n]); i < path.size(); ++i) cycle += raw[path[i]].id + " <- ";
         fail(raw[n].id, raw[n].type, "input cycle: " + cycle + raw[n].id);
     }
 
@@ -223,6 +224,7 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
     // An input is also what it reads besides itself: a NRRD header's data files, the slices
     // of a folder (volumeInputFiles).
     std::map<std::string, std::string> inputFiles;
+    if (!options.graphFile.empty()) inputFiles.emplace(resolved(options.graphFile), "");
     for (const GraphNode& n : graph.nodes)
         for (const ParmSpec& spec : n.type->parms) {
             if (spec.type != ParmType::String || !n.parms.isSet(spec.token)) continue;
@@ -238,8 +240,9 @@ Graph parseGraph(const nlohmann::json& doc, const GraphOptions& options)
             if (spec.type == ParmType::Path && n.parms.isSet(spec.token)) {
                 const std::string given = n.parms.getString(spec.token), path = resolved(given);
                 if (auto in = inputFiles.find(path); in != inputFiles.end())
-                    fail(n.id, n.type, "parameter '" + spec.token + "': " + given + " is the input of node '" +
-                        in->second + "'; refusing to overwrite an input");
+                    fail(n.id, n.type, "parameter '" + spec.token + "': " + given +
+                        (in->second.empty() ? std::string(" is the graph file") : " is the input of node '" + in->second + "'") +
+                        "; refusing to overwrite an input");
                 auto [it, fresh] = writers.emplace(path, n.id);
                 if (!fresh)
                     fail(n.id, n.type, "parameter '" + spec.token + "': " + given + " is also written by node '" +
@@ -255,6 +258,7 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
     constexpr std::uintmax_t kMaxBytes = 64u << 20;
     constexpr int kMaxDepth = 256;
     std::error_code ec;
+    if (!fs::exists(path, ec)) throw GraphError("cannot read " + path + ": no such file");
     if (!fs::is_regular_file(path, ec)) throw GraphError("cannot read " + path + ": not a regular file");
     if (fs::file_size(path, ec) > kMaxBytes) throw GraphError(path + ": larger than 64 MiB, not a graph");
     std::ifstream in(path, std::ios::binary);
@@ -279,7 +283,9 @@ Graph loadGraph(const std::string& path, const GraphOptions& options)
         throw GraphError(path + ": not valid JSON: " + e.what());
     }
     try {
-        return parseGraph(doc, options);
+        GraphOptions withFile = options;
+        withFile.graphFile = path;
+        return parseGraph(doc, withFile);
     } catch (const GraphError& e) {
         throw GraphError(path + ": " + e.what());
     }

@@ -25,7 +25,7 @@ std::string checkNumber(const nlohmann::json& v, bool integer, const ParmRange& 
     if (integer ? !v.is_number_integer() : !v.is_number())
         return std::string("expected ") + (integer ? "an integer" : "a number") + ", got " + v.dump();
     const double x = v.get<double>();
-    if (!std::isfinite(x)) return "expected a finite number, got " + v.dump();
+    if (!std::isfinite(x)) return "expected a finite number, got " + number(x);
     if (hard && (x < hard->first || x > hard->second)) return outside(x, *hard);
     return "";
 }

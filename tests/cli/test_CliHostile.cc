@@ -102,6 +102,10 @@ TEST_CASE("CLI hostile: wrong successes are errors now", "[cli][hostile]")
             "float32", {out});
     }
     SECTION("an empty number") { requireRefused(runCli("mesh field:sphere --isovalue '' -q -o out.ply", dir), "--isovalue", {out}); }
+    SECTION("a NaN isovalue is named as given")
+    {
+        requireRefused(runCli("mesh field:sphere --isovalue nan -q -o out.ply", dir), "finite number, got nan", {out});
+    }
     SECTION("a raw scan with no cell")
     {
         writeFile(dir / "flat_2x2x1_uint8.raw", std::string("\1\2\3\4", 4));
@@ -510,6 +514,18 @@ TEST_CASE("CLI hostile: detached NRRD data files", "[cli][hostile][nrrd]")
         REQUIRE(::mkfifo((dir / "scan" / "fifo").c_str(), 0600) == 0);
         refused("fifo", nhdr("fifo"), "not a regular file");
     }
+    SECTION("the header itself a FIFO or /dev/zero, behind a NRRD name")
+    {
+        REQUIRE(::mkfifo((dir / "scan" / "head.nhdr").c_str(), 0600) == 0);
+        requireRefused(runTimed("mesh scan/head.nhdr -q -o out.ply", dir), "not a regular file", {out});
+        fs::create_symlink("/dev/zero", dir / "scan" / "zero.nrrd");
+        requireRefused(runTimed("mesh scan/zero.nrrd -q -o out.ply", dir), "not a regular file", {out});
+    }
+    SECTION("a header of one 17 MiB line")
+    {
+        writeFile(dir / "scan" / "long.nhdr", "NRRD0004\n# " + std::string(17u << 20, 'x') + "\n");
+        requireRefused(runTimed("mesh scan/long.nhdr -q -o out.ply", dir), "longer than 16 MiB", {out});
+    }
     SECTION("/dev/zero")
     {
         refused("zero", nhdr("/dev/zero"), "not a regular file");
@@ -579,6 +595,55 @@ TEST_CASE("CLI hostile: no output may replace a file an input reads", "[cli][hos
     const std::string slice = readFile(dir / "series" / "a.ply");
     requireRefused(runTimed("mesh series -k 30 -q -o series/a.ply", dir), "input", {});
     CHECK(readFile(dir / "series" / "a.ply") == slice);
+}
+
+TEST_CASE("CLI hostile: outputs a rename would get wrong", "[cli][hostile]")
+{
+    TempDir tmp;
+    const fs::path& dir = tmp.path;
+    const std::string sphere = "mesh field:sphere --resolution 16 -q ";
+    SECTION("a later output's name too long: the earlier output is kept")
+    {
+        writeFile(dir / "a.ply", "KEEP");
+        const std::string longName(252, 'a');
+        requireRefused(runCli(sphere + "-o a.ply --summary " + longName + ".json", dir), "too long", {});
+        CHECK(readFile(dir / "a.ply") == "KEEP");
+    }
+    SECTION("a FIFO is refused, not replaced by a file")
+    {
+        REQUIRE(::mkfifo((dir / "f.ply").c_str(), 0600) == 0);
+        requireRefused(runCli(sphere + "-o f.ply", dir), "not a regular file", {});
+        struct stat st;
+        REQUIRE(::lstat((dir / "f.ply").c_str(), &st) == 0);
+        CHECK(S_ISFIFO(st.st_mode));
+    }
+    SECTION("a symbolic link is written through, with the file's permissions")
+    {
+        fs::create_directory(dir / "real");
+        writeFile(dir / "real" / "mesh.ply", "old");
+        fs::permissions(dir / "real" / "mesh.ply", fs::perms::owner_read | fs::perms::owner_write | fs::perms::group_read);
+        fs::create_symlink("real/mesh.ply", dir / "link.ply");
+        REQUIRE(runCli(sphere + "-o link.ply", dir).status == 0);
+        CHECK(fs::is_symlink(dir / "link.ply"));
+        CHECK(readFile(dir / "real" / "mesh.ply").rfind("ply\n", 0) == 0);
+        CHECK(fs::status(dir / "real" / "mesh.ply").permissions() ==
+              (fs::perms::owner_read | fs::perms::owner_write | fs::perms::group_read));
+        requireNoTemporaries(dir);
+    }
+    SECTION("a link to a missing file is refused")
+    {
+        fs::create_symlink("nothere.ply", dir / "dangling.ply");
+        requireRefused(runCli(sphere + "-o dangling.ply", dir), "missing file", {dir / "nothere.ply"});
+    }
+    SECTION("a graph that writes over its own file")
+    {
+        const std::string graph = R"({"nodes": [{"id": "r", "type": "read_volume", "parms": {"input": "field:sphere"}},
+            {"id": "m", "type": "mesh", "inputs": {"volume": "r"}},
+            {"id": "w", "type": "write_ply", "inputs": {"mesh": "m"}, "parms": {"path": "./g.json"}}]})";
+        writeFile(dir / "g.json", graph);
+        requireRefused(runCli("run g.json -q", dir), "the graph file", {});
+        CHECK(readFile(dir / "g.json") == graph);
+    }
 }
 
 TEST_CASE("CLI hostile: TIFF directories that lie", "[cli][hostile][tiff]")

@@ -38,7 +38,7 @@ BAD_GRAPHS = {
                        ["node 'mesh' (mesh)", "parameter 'method'", "not one of linear|cubic|weno|weno-paper"]),
     "cycle": (graph(READ, {"id": "a", "type": "box_select", "inputs": {"mesh": "b"}},
                     {"id": "b", "type": "threshold", "inputs": {"mesh": "a"}}, dict(SAVE, inputs={"mesh": "a"})),
-              ["node '", "input cycle"]),
+              ["node 'a' (box_select)", "input cycle: a <- b <- a"]),  # a reads b, b reads a
     "missing input": (graph(READ, {"id": "mesh", "type": "mesh"}, SAVE),
                       ["node 'mesh' (mesh)", "input 'volume' is not connected"]),
     "input from nowhere": (graph(READ, dict(MESH, inputs={"volume": "reed"}), SAVE),
@@ -53,6 +53,12 @@ BAD_GRAPHS = {
                            dict(SAVE, inputs={"mesh": "blend"})),
                      ["node 'blend' (method_blend)", "parameter 'selection'", "no per-vertex 'in_box'"]),
 }
+
+
+def test_missing_graph_file(isouq_cli, tmp_path):
+    proc = run(isouq_cli, "run", tmp_path / "none.json", "--quiet")
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == f"isouq: error: cannot read {tmp_path / 'none.json'}: no such file"
 
 
 @pytest.mark.parametrize("case", sorted(BAD_GRAPHS))
@@ -231,7 +237,9 @@ def test_ctrl_c_cancels_within_a_second(isouq_cli, tmp_path):
         if proc.poll() is None:
             proc.kill()
     elapsed = time.monotonic() - sent
-    assert proc.returncode == 130, proc.stderr.read()
+    err = proc.stderr.read()
+    assert proc.returncode == 130, err
+    assert err == "isouq: interrupted; no output written\n"  # one line, no blank one before it (-q: no bar)
     # A sanitized build runs several times slower: scripts/sanitize.sh sets ISOUQ_TEST_TIME_SCALE.
     assert elapsed < 1.0 * float(os.environ.get("ISOUQ_TEST_TIME_SCALE", "1")), f"took {elapsed:.2f} s to stop"
     assert sorted(p.name for p in out.iterdir()) == ["out.ply"]

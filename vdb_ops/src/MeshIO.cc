@@ -18,6 +18,7 @@
 #include <iterator>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <memory>
 #include <string_view>
@@ -61,22 +62,43 @@ void releaseTempSlot(int slot)
     sTempSlots[slot].used.store(false);
 }
 
-// A short temporary name `.isouq-<pid>-<n>.tmp` next to the target, so any legal target name fits.
+// A short temporary name `.isouq-<pid>-<n>.tmp` next to the target, renamed over it by commit().
+// Everything the rename could still refuse is checked here, before any work (checkWritable):
+// a name too long for the folder's file system, a folder, a device, FIFO or socket (which a
+// rename would replace). A symbolic link is written through: the file it names is replaced,
+// with its permissions, and the link stays.
 AtomicFile::AtomicFile(const std::string& path) : mPath(path)
 {
+    struct stat st;
+    if (::lstat(mPath.c_str(), &st) == 0 && S_ISLNK(st.st_mode)) {
+        char* target = ::realpath(mPath.c_str(), nullptr);
+        if (!target) fail("a symbolic link to a missing file");
+        mPath = target;
+        std::free(target);
+    }
     const std::size_t slash = mPath.find_last_of('/');
     const std::string dir = slash == std::string::npos ? "" : mPath.substr(0, slash + 1);
     const std::string name = slash == std::string::npos ? mPath : mPath.substr(slash + 1);
     if (name.empty() || name == "." || name == "..") fail("not a file name");
-    struct stat st;
+    const long nameMax = ::pathconf(dir.empty() ? "." : dir.c_str(), _PC_NAME_MAX);
+    if (mPath.size() >= PATH_MAX || name.size() > std::size_t(nameMax > 0 ? nameMax : NAME_MAX))
+        fail(std::strerror(ENAMETOOLONG));
+    int mode = -1;
     if (::stat(mPath.c_str(), &st) == 0) {
         if (S_ISDIR(st.st_mode)) fail(std::strerror(EISDIR));
+        if (!S_ISREG(st.st_mode)) fail("not a regular file (a device, FIFO or socket), which the output would replace");
         if (::access(mPath.c_str(), W_OK) != 0) fail(std::strerror(errno));
+        mode = int(st.st_mode & 07777);
     }
     const std::string temp = dir + ".isouq-" + std::to_string(::getpid()) + "-" +
         std::to_string(sTempCounter.fetch_add(1)) + ".tmp";
     mSlot = claimTempSlot(temp);
     mFd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0666);
+    if (mFd >= 0 && mode >= 0 && ::fchmod(mFd, mode_t(mode)) != 0) {
+        const int error = errno;
+        ::close(mFd), ::unlink(temp.c_str());
+        mFd = -1, errno = error;
+    }
     if (mFd < 0) {
         releaseTempSlot(mSlot);
         fail(std::strerror(errno));

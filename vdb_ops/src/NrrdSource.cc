@@ -214,16 +214,30 @@ std::vector<std::string> nrrdDataFiles(const std::string& path)
     // the end of the file (detached); `data file:` (or `datafile:`) names one file, a pattern,
     // or LIST followed by one name per line to the header's end. Names are relative to the
     // header's folder unless absolute.
+    // Only a regular file is read (a FIFO would block, a device never end); the load that
+    // follows says what else it is. Lines are read in bounded chunks, so a header with no line
+    // break (/dev/zero behind a symlink) stops at 16 MiB too.
     constexpr std::size_t kMaxHeader = 16u << 20;
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec)) return {};
     std::ifstream in(path, std::ios::binary);
     std::vector<std::string> lines;
     std::size_t bytes = 0;
-    for (std::string line; std::getline(in, line);) {
+    std::string line;
+    for (char chunk[4096]; in.getline(chunk, sizeof(chunk)) || in.gcount() > 0;) {
+        const std::size_t got = std::size_t(in.gcount());
+        const bool more = in.fail() && !in.eof(); // the chunk filled before the line ended
+        if ((bytes += got) > kMaxHeader) throw InputError("'" + path + "' has a NRRD header longer than 16 MiB");
+        line.append(chunk, more ? got : got - (in.eof() ? 0 : 1)); // gcount counts the '\n' taken
+        if (more) {
+            in.clear();
+            continue;
+        }
         if (!line.empty() && line.back() == '\r') line.pop_back();
         if (line.empty()) break;
-        if ((bytes += line.size() + 1) > kMaxHeader)
-            throw InputError("'" + path + "' has a NRRD header longer than 16 MiB");
         lines.push_back(std::move(line));
+        line.clear();
+        if (in.eof()) break;
     }
     const fs::path folder = fs::path(path).parent_path();
     auto resolve = [&](const std::string& name) {

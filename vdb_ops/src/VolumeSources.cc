@@ -17,6 +17,8 @@ std::uint64_t fileSize(const std::string& path)
     std::error_code ec;
     if (!fs::exists(path, ec)) throw InputError("cannot open '" + path + "': no such file");
     if (fs::is_directory(path, ec)) throw InputError("'" + path + "' is a directory, not a volume");
+    if (!fs::is_regular_file(path, ec))
+        throw InputError("cannot open '" + path + "': not a regular file (a device, FIFO or socket)");
     const std::uintmax_t size = fs::file_size(path, ec);
     if (ec) throw InputError("cannot open '" + path + "': " + ec.message());
     if (size == 0) throw InputError("'" + path + "' is empty");

@@ -37,6 +37,7 @@ struct GraphNode {
 
 struct GraphOptions {
     std::string outputDir; ///< where relative output paths go ("" = current folder)
+    std::string graphFile; ///< the file the graph was read from, which no output may replace
 };
 
 struct Graph {
