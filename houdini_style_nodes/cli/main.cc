@@ -9,6 +9,7 @@
 #include "ValidateCommand.h"
 
 #include <isouq/MeshIO.h>
+#include <isouq/Threads.h>
 #include <isouq/VolumeSources.h>
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
@@ -286,7 +287,7 @@ int isouq_cli_main(int argc, char** argv)
     mesh->add_option("--hidden-out", meshRequest.hiddenOutput, "With --hidden-features: write that mesh too (.ply or .vtp)");
     mesh->add_option("--save-graph", saveGraph,
         "Also write the node graph this command runs (JSON; 'isouq run' reproduces the outputs)");
-    mesh->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, 4096));
+    mesh->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, isouq::kMaxThreads));
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     isouq::nodes::SequenceRequest sequence;
     auto* frames = mesh->add_option("--frames", sequence.frames,
@@ -314,7 +315,7 @@ int isouq_cli_main(int argc, char** argv)
     CLI::App* run = app.add_subcommand("run", "Run a JSON node graph");
     run->add_option("GRAPH", graphPath, "Graph file (.json)")->required();
     run->add_option("--out-dir,-d", outDir, "Folder for relative output paths (default: the current one)");
-    run->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, 4096));
+    run->add_option("--threads,-j", threads, kThreadsHelp)->check(CLI::Range(0, isouq::kMaxThreads));
     run->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     run->footer(kRunFooter);
 

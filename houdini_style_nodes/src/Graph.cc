@@ -54,6 +54,8 @@ std::string expand(const std::string& s, const std::string& id, const NodeType* 
     return out + s.substr(last);
 }
 
+} // namespace
+
 ParmValues evaluateParms(const nlohmann::json& given, const std::string& id, const NodeType& type,
     const GraphOptions& options)
 {
@@ -86,6 +88,8 @@ ParmValues evaluateParms(const nlohmann::json& given, const std::string& id, con
     }
     return ParmValues(values);
 }
+
+namespace {
 
 struct RawNode {
     std::string id;

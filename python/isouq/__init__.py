@@ -69,7 +69,7 @@ class Mesh:
         """Writes the mesh as the CLI does (SPEC §6 PLY, or VTK XML PolyData for a .vtp path),
         atomically: a failed write leaves no file and never clobbers an existing one.
         format: "binary" (little-endian) or "ascii", for PLY."""
-        self._handle.write(os.fspath(path), format)
+        self._handle.write(os.fsdecode(path), format)
 
     def __repr__(self):
         return (f"<isouq.Mesh {len(self.vertices)} vertices, {len(self.triangles)} triangles, "
@@ -104,11 +104,21 @@ def _is_pyopenvdb_grid(source):
     return type(source).__module__ == "pyopenvdb"
 
 
+def _is_path(source):
+    return isinstance(source, (str, bytes, os.PathLike))
+
+
 def _register(source, spacing, origin):
     """A `memory:N` registration for an in-memory source (held while the graph runs), or
     None for an INPUT string."""
-    if isinstance(source, (str, os.PathLike)):
+    if _is_path(source):
+        if tuple(_vec3(origin, "origin")) != (0, 0, 0):
+            raise InputError("origin is for numpy arrays; a file or field keeps its own placement")
         return None
+    if isinstance(source, Volume) or _is_pyopenvdb_grid(source):
+        if tuple(_vec3(spacing, "spacing")) != (1, 1, 1) or tuple(_vec3(origin, "origin")) != (0, 0, 0):
+            raise InputError("spacing and origin are for numpy arrays and .raw paths; a grid or Volume keeps "
+                             "its own transform")
     if isinstance(source, Volume):
         return _core.register_volume(source._handle, source)
     if _is_pyopenvdb_grid(source):
@@ -133,9 +143,22 @@ def _little():
     return sys.byteorder == "little"
 
 
-def _vec3(value, name):
+def _finite(value, name):
+    import math
     try:
-        values = [float(v) for v in value]
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(number):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    return number
+
+
+def _vec3(value, name):
+    if isinstance(value, (str, bytes)):
+        raise InputError(f"{name} must be three numbers, got {value!r}")
+    try:
+        values = [_finite(v, name) for v in value]
     except TypeError:
         raise InputError(f"{name} must be three numbers, got {value!r}") from None
     if len(values) != 3:
@@ -146,19 +169,24 @@ def _vec3(value, name):
 def _read_parms(source, registration, isovalue, grid, resolution, domain, spacing, keep=None):
     """The read_volume parameters, as `isouq mesh INPUT --isovalue ... --grid ...` sets them."""
     if registration is None:
-        read = {"input": os.fspath(source)}
-        if tuple(spacing) != (1, 1, 1):
+        read = {"input": os.fsdecode(source)}
+        if tuple(_vec3(spacing, "spacing")) != (1, 1, 1):
             read["spacing"] = _vec3(spacing, "spacing")
     else:
         read = {"input": registration.input}
+        if resolution is not None or domain is not None:
+            raise InputError("resolution and domain are for field: and formula: inputs, not for arrays, "
+                             "grids or Volumes")
     if isovalue is not None:
-        read["isovalue"] = float(isovalue)
+        read["isovalue"] = _finite(isovalue, "isovalue")
     if grid is not None:
         read["grid"] = grid
     if resolution is not None:
         read["resolution"] = int(resolution)
     if domain is not None:
-        read["domain"] = [float(v) for v in domain]
+        if isinstance(domain, (str, bytes)):
+            raise InputError(f"domain must be two numbers, got {domain!r}")
+        read["domain"] = [_finite(v, "domain") for v in domain]
     if keep is not None:
         read["keep"] = keep
     return read
@@ -189,6 +217,8 @@ def mesh(source, isovalue=None, method="weno", linear_only=False, hidden_feature
         >>> m.summary["method"], m.hidden is None
         ('weno', True)
     """
+    if not isinstance(method, str):
+        raise InputError(f"method must be a string such as 'weno' or 'linear', got {method!r}")
     registration = _register(source, spacing, origin)
     request = {
         "read": _read_parms(source, registration, isovalue, grid, resolution, domain, spacing),
@@ -245,5 +275,5 @@ def run(graph, keep=(), threads=0, output_dir=""):
     every node cooks, then the files are written together (none on failure).
     keep: ids of nodes whose mesh to return in RunResult.meshes."""
     if not isinstance(graph, dict):
-        graph = os.fspath(graph)
+        graph = os.fsdecode(graph)
     return RunResult(_core.run(graph, list(keep), int(threads), os.fspath(output_dir)))

@@ -6,6 +6,7 @@
 // Ctrl-C, which cancels the run through its interrupter.
 #include <isouq/Errors.h>
 #include <isouq/MeshIO.h>
+#include <isouq/Threads.h>
 #include <isouq/VolumeSources.h>
 #include <isouq/nodes/Graph.h>
 #include <isouq/nodes/MeshGraph.h>
@@ -33,6 +34,7 @@
 #include <future>
 #include <algorithm>
 #include <thread>
+#include <unistd.h>
 #include <vector>
 
 namespace py = pybind11;
@@ -113,6 +115,15 @@ template <typename Work>
 auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)))
 {
     using Result = decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)));
+    if (threads < 0 || threads > isouq::kMaxThreads)
+        throw isouq::InputError("threads must be 0 (every core) or 1 to " + std::to_string(isouq::kMaxThreads) +
+            ", got " + std::to_string(threads));
+    // A forked child has none of the parent's threads (its workers, TBB's): a call would wait for
+    // ever on a worker that is not there.
+    static const pid_t firstCaller = ::getpid();
+    if (::getpid() != firstCaller)
+        throw std::runtime_error("isouq was used before this process was forked, and its threads did not come "
+            "along: use multiprocessing's 'spawn' or 'forkserver' start method, or import isouq in the child only");
     thread_local Worker worker;
     Worker* mine = &worker; // a thread_local named inside the job would be the worker thread's
     CancelInterrupter interrupter;
@@ -148,9 +159,18 @@ py::object toPython(const nlohmann::json& value)
     return py::module_::import("json").attr("loads")(value.dump());
 }
 
+/// A graph or parameters from Python: JSON values only, so NaN and infinities (which Python's
+/// json writes and JSON has not) are refused with one line.
 nlohmann::json fromPython(const py::handle& value)
 {
-    return nlohmann::json::parse(py::module_::import("json").attr("dumps")(value).cast<std::string>());
+    std::string text;
+    try {
+        text = py::module_::import("json").attr("dumps")(value, py::arg("allow_nan") = false).cast<std::string>();
+    } catch (py::error_already_set& e) {
+        if (!e.matches(PyExc_ValueError)) throw;
+        throw isouq::InputError("a parameter is NaN or an infinity; parameters are finite numbers");
+    }
+    return nlohmann::json::parse(text);
 }
 
 /// A mesh a run kept: numpy views of its storage keep this object (and so the mesh) alive.
@@ -265,11 +285,9 @@ nodes::CookContext cookAlone(const std::string& type, const nlohmann::json& give
     openvdb::util::NullInterrupter* interrupter)
 {
     const nodes::NodeType* t = nodes::findNodeType(type);
-    nlohmann::json values = nlohmann::json::object();
-    for (const nodes::ParmSpec& spec : t->parms) values[spec.token] = given.value(spec.token, spec.defaultValue);
     nodes::CookContext ctx;
     ctx.nodeId = type;
-    ctx.parms = nodes::ParmValues(values);
+    ctx.parms = nodes::evaluateParms(given, type, *t); // checked as a graph's are
     ctx.writes = writes;
     ctx.warnings = warnings;
     ctx.interrupter = interrupter;
@@ -323,6 +341,12 @@ py::dict run(const py::object& graph, const std::vector<std::string>& keep, int 
         const std::string path = py::str(py::module_::import("os").attr("fspath")(graph));
         py::gil_scoped_release release;
         parsed = nodes::loadGraph(path, options);
+    }
+    for (const std::string& id : keep) {
+        const auto node = std::find_if(parsed.nodes.begin(), parsed.nodes.end(), [&](const nodes::GraphNode& n) { return n.id == id; });
+        if (node == parsed.nodes.end()) throw isouq::InputError("keep: the graph has no node '" + id + "'");
+        if (std::none_of(node->type->outputs.begin(), node->type->outputs.end(), [](const nodes::PortSpec& p) { return p.type == "mesh"; }))
+            throw isouq::InputError("keep: node '" + id + "' (" + node->type->type + ") has no mesh output");
     }
     if (!outputDir.empty()) std::filesystem::create_directories(outputDir);
     return resultOf(runCancellable(threads,

@@ -169,6 +169,10 @@ TEST_CASE("CLI hostile: user strings cannot split the error line", "[cli][hostil
     requireRefused(runCli("mesh nl.vdb --grid " + quote("x\ny") + " -q -o out.ply", dir), "x\\ny", {dir / "out.ply"});
     requireRefused(runCli("mesh " + quote("field:sp\nhere") + " -q -o out.ply", dir), "sp\\nhere", {dir / "out.ply"});
     requireRefused(runCli("mesh " + quote("bad\r\n.vdb") + " -q -o out.ply", dir), "bad\\r\\n.vdb", {dir / "out.ply"});
+    // Bytes that are not UTF-8 (a Latin-1 name) and C1 controls are escaped; UTF-8 stays as it is.
+    requireRefused(runCli("mesh " + quote("caf\xe9.vdb") + " -q -o out.ply", dir), "caf\\xe9.vdb", {dir / "out.ply"});
+    requireRefused(runCli("mesh " + quote("csi\xc2\x9b.vdb") + " -q -o out.ply", dir), "csi\\xc2\\x9b.vdb", {dir / "out.ply"});
+    requireRefused(runCli("mesh " + quote("caf\xc3\xa9.vdb") + " -q -o out.ply", dir), "caf\xc3\xa9.vdb", {dir / "out.ply"});
     writeFile(dir / "g.json", R"({"nodes": [{"id": "a\nb", "type": "nope"}]})");
     requireRefused(runCli("run g.json -q", dir), "a\\nb", {});
     writeFile(dir / "v.json", R"({"nodes": [{"id": "r", "type": "read_volume", "parms": {"input": "${ISOUQ_NL}"}},

@@ -196,6 +196,72 @@ def test_bad_input_raises_one_line(isouq, isouq_cli, tmp_path):
         m.write(tmp_path / "no" / "such" / "folder.ply")
 
 
+def test_arguments_that_would_be_ignored_or_misread_raise(isouq, data_dir, tmp_path):
+    """Found by a hostile sweep (docs/hardening.md, 7 Dec): each of these was a crash, a JSON
+    parser's message, a silent no-op or a silently wrong reading."""
+    ball = np.zeros((12, 12, 12), np.float32)
+    ball[4:8, 4:8, 4:8] = 1
+    bucky = str(data_dir / "bucky_32x32x32_uint8.raw")
+    grid_like = isouq.load(ball, isovalue=0.5)
+    cases = {
+        "threads huge (TBB crashed)": (lambda: isouq.mesh(ball, isovalue=0.5, threads=10**7), "threads must be"),
+        "threads negative": (lambda: isouq.mesh(ball, isovalue=0.5, threads=-2), "threads must be"),
+        "NaN isovalue": (lambda: isouq.mesh(ball, isovalue=float("nan")), "isovalue must be a finite number"),
+        "infinite spacing": (lambda: isouq.mesh(bucky, spacing=(float("inf"), 1, 1)), "spacing must be"),
+        "NaN domain": (lambda: isouq.mesh("formula:x", domain=(float("nan"), 1)), "domain must be"),
+        "NaN in a graph": (lambda: isouq.run({"nodes": [{"id": "r", "type": "read_volume",
+                                                          "parms": {"input": "field:sphere", "isovalue": float("nan")}}]}),
+                           "NaN or an infinity"),
+        "method None": (lambda: isouq.mesh(ball, isovalue=0.5, method=None), "method must be a string"),
+        "spacing a string (read as 1, 2, 3)": (lambda: isouq.mesh(bucky, spacing="123"), "three numbers"),
+        "origin of a file": (lambda: isouq.mesh(bucky, origin=(100, 0, 0)), "origin is for numpy arrays"),
+        "spacing of a Volume": (lambda: isouq.mesh(grid_like, spacing=(2, 2, 2)), "keeps its own transform"),
+        "resolution of an array": (lambda: isouq.mesh(ball, isovalue=0.5, resolution=16), "field: and formula:"),
+        "unknown keep of load": (lambda: isouq.load(ball, keep="bogus"), "not one of"),
+        "keep of a node not there": (lambda: isouq.run({"nodes": [{"id": "r", "type": "read_volume",
+                                                                   "parms": {"input": "field:sphere"}}]}, keep=["nope"]),
+                                     "no node 'nope'"),
+    }
+    for what, (call, words) in cases.items():
+        with pytest.raises(isouq.InputError) as e:
+            call()
+        assert words in str(e.value) and "json.exception" not in str(e.value), f"{what}: {e.value}"
+    m = isouq.mesh(ball, isovalue=0.5)
+    with pytest.raises(isouq.InputError, match="not one of"):
+        m.write(tmp_path / "f.ply", format="bogus")
+    with pytest.raises(isouq.InputError, match="NUL"):  # was written to tmp_path / "x"
+        m.write(str(tmp_path / "x\0y.ply"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    # A bytes path is a path, as os.fsdecode reads it.
+    assert len(isouq.mesh(os.fsencode(bucky), isovalue=51).vertices) == len(isouq.mesh(bucky, isovalue=51).vertices)
+
+
+def test_a_forked_child_raises_rather_than_hangs(isouq):
+    isouq.mesh("field:tangle", resolution=16)
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: the parent's worker thread did not come along
+        os.close(read)
+        try:
+            isouq.mesh("field:tangle", resolution=16)
+            message = b"no error"
+        except RuntimeError as e:
+            message = str(e).encode()
+        os.write(write, message)
+        os._exit(0)
+    os.close(write)
+    deadline, ended = time.time() + 60, (0, 0)
+    while time.time() < deadline and ended == (0, 0):
+        time.sleep(0.05)
+        ended = os.waitpid(pid, os.WNOHANG)
+    if ended == (0, 0):
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child's call hung")
+    with os.fdopen(read, "rb") as r:
+        assert b"spawn" in r.read()
+
+
 def test_other_thread_runs_during_a_long_call(isouq):
     ticks, stop = [], threading.Event()
 
@@ -219,9 +285,15 @@ def test_other_thread_runs_during_a_long_call(isouq):
     assert len(during) > 0.5 * elapsed / 0.0055, (len(during), elapsed)
 
 
-def test_keyboard_interrupt_cancels_within_a_second(isouq, tmp_path):
+@pytest.mark.parametrize("call", [
+    'isouq.mesh("field:tangle", resolution=600)',  # about 5-20 s on 2 cores
+    # No isovalue: Otsu's two passes over 10^11 samples (a view: no memory) come first.
+    'isouq.mesh(np.broadcast_to(np.float32(1), (100_000, 1000, 1000)))',
+])
+def test_keyboard_interrupt_cancels_within_a_second(isouq, tmp_path, call):
     script = textwrap.dedent(f"""
         import os, signal, sys, threading, time
+        import numpy as np
         sys.path.insert(0, {str(module_dir())!r})
         import isouq
         sent = []
@@ -231,7 +303,7 @@ def test_keyboard_interrupt_cancels_within_a_second(isouq, tmp_path):
         threading.Timer(0.5, interrupt).start()
         start = time.perf_counter()
         try:
-            isouq.mesh("field:tangle", resolution=600)  # about 5-20 s on 2 cores
+            {call}
         except KeyboardInterrupt:
             print(f"cancelled {{time.perf_counter() - sent[0]:.3f}}")
             sys.exit(0)

@@ -165,7 +165,7 @@ LoadedVolume loadRawArray(const RawSlabReader& reader, const VolumeRequest& requ
     const int nz = reader.dims().z();
     checkLayersFit(reader, threadsInUse(), request.input);
     const auto [isovalue, source] = rawIsovalue(request, reader.type(),
-        [&](const Range* range) { return rawStats(reader, 0, nz, range); });
+        [&](const Range* range) { return rawStats(reader, 0, nz, range, interrupter); });
     LoadedVolume volume = denseVolume(
         sparsifyRaw(reader, 0, (nz + kBlock - 1) / kBlock, request.keep, isovalue, interrupter), reader.dims(), isovalue);
     volume.isovalueSource = source;
@@ -289,7 +289,7 @@ DensePiece loadRawArrayPiece(const RawSlabReader& reader, const VolumeRequest& r
     // Otsu's statistics: each piece its slices, joined in piece order.
     const auto [isovalue, source] = rawIsovalue(request, reader.type(), [&](const Range* range) {
         RawStats part;
-        comm.agree([&] { part = rawStats(reader, z0, z1, range); });
+        comm.agree([&] { part = rawStats(reader, z0, z1, range, interrupter); });
         Words words = {bitsOf(part.range.min), bitsOf(part.range.max)};
         words.insert(words.end(), part.counts.begin(), part.counts.end());
         RawStats whole;

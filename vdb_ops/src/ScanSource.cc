@@ -214,7 +214,7 @@ DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, cons
         isovalue = *request.isovalue;
     } else { // otsuOfSource's two passes, each piece over its own slices, joined in piece order
         SourceStats part;
-        comm.agree([&] { part = sourceStats(source, z0, z1); });
+        comm.agree([&] { part = sourceStats(source, z0, z1, nullptr, interrupter); });
         Range range;
         for (const PieceComm::Words& w : comm.allgather({bitsOf(part.range.min), bitsOf(part.range.max)})) {
             Range r;
@@ -222,7 +222,7 @@ DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, cons
             range.add(r);
         }
         checkOtsuRange(range);
-        comm.agree([&] { part = sourceStats(source, z0, z1, &range); });
+        comm.agree([&] { part = sourceStats(source, z0, z1, &range, interrupter); });
         std::array<std::uint64_t, 256> histogram{};
         for (const PieceComm::Words& w : comm.allgather(PieceComm::Words(part.histogram.begin(), part.histogram.end())))
             for (std::size_t b = 0; b < histogram.size(); ++b) histogram[b] += w[b];

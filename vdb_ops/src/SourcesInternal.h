@@ -113,11 +113,12 @@ struct SourceStats {
     Range range;
     std::array<std::uint64_t, 256> histogram{};
 };
-SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange = nullptr);
+SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange = nullptr,
+    openvdb::util::NullInterrupter* interrupter = nullptr);
 /// InputError when a volume's finite @a range gives no default isovalue (no finite value, constant data).
 void checkOtsuRange(const Range& range);
 /// Otsu's threshold of a dense source (two streaming passes: range, then histogram).
-double otsuOfSource(SliceSource& source);
+double otsuOfSource(SliceSource& source, openvdb::util::NullInterrupter* interrupter = nullptr);
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).
 double otsuOfGrid(const openvdb::FloatGrid& grid);
 
@@ -209,7 +210,8 @@ struct RawStats {
     std::vector<std::uint64_t> counts;
     void add(const RawStats& other);
 };
-RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange = nullptr);
+RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange = nullptr,
+    openvdb::util::NullInterrupter* interrupter = nullptr);
 /// Otsu's threshold from a whole volume's RawStats (with counts), as otsuOfSource.
 /// @throw InputError for constant data.
 double otsuOfRawStats(const RawStats& stats, SampleType type);

@@ -48,7 +48,8 @@ int histogramBin(double v, double lo, double hi)
 }
 
 
-SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange)
+SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histogramRange,
+    openvdb::util::NullInterrupter* interrupter)
 {
     const int slab = kBlock;
     std::vector<float> buffer(std::size_t(source.dims.x()) * source.dims.y() * slab);
@@ -56,6 +57,7 @@ SourceStats sourceStats(SliceSource& source, int z0, int z1, const Range* histog
     // depend on the order.
     tbb::enumerable_thread_specific<SourceStats> parts;
     for (int z = z0; z < z1; z += slab) {
+        throwIfInterrupted(interrupter); // a default isovalue reads the whole volume twice
         const int count = std::min(slab, z1 - z);
         source.read(z, count, buffer.data());
         const std::size_t n = std::size_t(source.dims.x()) * source.dims.y() * count;
@@ -104,12 +106,12 @@ void checkOtsuRange(const Range& range)
 }
 
 /// Two streaming passes over a dense source: finite range, then a 256-bin histogram.
-double otsuOfSource(SliceSource& source)
+double otsuOfSource(SliceSource& source, openvdb::util::NullInterrupter* interrupter)
 {
     const int nz = source.dims.z();
-    const Range range = sourceStats(source, 0, nz).range;
+    const Range range = sourceStats(source, 0, nz, nullptr, interrupter).range;
     checkOtsuRange(range);
-    return otsuThreshold(sourceStats(source, 0, nz, &range).histogram, range.min, range.max);
+    return otsuThreshold(sourceStats(source, 0, nz, &range, interrupter).histogram, range.min, range.max);
 }
 
 /// Otsu over the active values of a sparse grid (tiles weigh their voxel count).
@@ -570,7 +572,7 @@ LoadedVolume denseVolume(SparseResult&& sparse, const Coord& dims, float isovalu
 LoadedVolume loadDense(SliceSource& source, const VolumeRequest& request, openvdb::util::NullInterrupter* interrupter)
 {
     checkLayersFit(source, request.input);
-    const float isovalue = request.isovalue ? *request.isovalue : float(otsuOfSource(source));
+    const float isovalue = request.isovalue ? *request.isovalue : float(otsuOfSource(source, interrupter));
     LoadedVolume volume = buildDense(source, request, isovalue, interrupter);
     volume.isovalueSource = request.isovalue ? "given" : "Otsu (starting value)";
     return volume;
@@ -646,13 +648,15 @@ void RawStats::add(const RawStats& other)
     for (std::size_t i = 0; i < other.counts.size(); ++i) counts[i] += other.counts[i];
 }
 
-RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange)
+RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* histogramRange,
+    openvdb::util::NullInterrupter* interrupter)
 {
     return withRawSamples(reader.type(), [&](auto sample) {
         using W = decltype(sample);
         tbb::enumerable_thread_specific<std::pair<std::vector<W>, std::vector<char>>> buffers;
         tbb::enumerable_thread_specific<RawStats> parts;
         forSlabs(z0, z1, [&](int a, int b) {
+            throwIfInterrupted(interrupter); // a default isovalue reads the whole scan twice
             auto& [values, bytes] = buffers.local();
             values.resize(std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(b - a));
             readAs(reader, a, b, values.data(), bytes);

@@ -10,6 +10,10 @@
 
 namespace isouq {
 
+/// The most worker threads a caller may ask for (the CLI's -j, the Python module's threads):
+/// more would only cost each arena's memory (TBB crashed setting up 10^7).
+constexpr int kMaxThreads = 4096;
+
 /// The threads of the current arena, as limited by a tbb::global_control (the CLI's -j), which
 /// this_task_arena::max_concurrency() alone does not see.
 inline int threadsInUse()

@@ -45,6 +45,13 @@ struct Graph {
     std::vector<GraphNode> nodes; ///< in an order where every input precedes its reader
 };
 
+/// The parameters of node @a id of @a type from @a given over the declared defaults, checked as
+/// parseGraph checks them (unknown tokens, types, hard ranges, menu tokens, NUL characters),
+/// with ${NAME} expanded and relative paths taken from options.outputDir. For a node cooked
+/// outside a graph (the Python module's load and write). @throw GraphError
+ParmValues evaluateParms(const nlohmann::json& given, const std::string& id, const NodeType& type,
+    const GraphOptions& options = {});
+
 /// Parses and checks @a doc completely: unknown node types, parameters or inputs, wrong
 /// types, values outside hard ranges, missing inputs, port type mismatches, cycles, and two
 /// outputs to one path. Nothing runs and nothing is written.
