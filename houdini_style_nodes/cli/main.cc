@@ -80,6 +80,8 @@ bool stderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
 
 /// False on the MPI ranks other than 0 while every rank reports the same thing (usage errors).
 bool sPrintsErrors = true;
+/// What an interrupted run leaves: nothing, or a sequence's finished frames.
+const char* sInterruptedNote = "no output written";
 
 void printError(const std::string& message)
 {
@@ -188,6 +190,7 @@ struct MpiSession {
 /// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
 int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
 {
+    sInterruptedNote = "the frames finished so far are written (--resume keeps them)";
     isouq::cli::ProgressInterrupter progress(
         !quiet && stderrIsTerminal() ? isouq::cli::ProgressStyle::Bar : isouq::cli::ProgressStyle::None);
     const auto start = std::chrono::steady_clock::now();
@@ -382,7 +385,7 @@ int isouq_cli_main(int argc, char** argv)
         return validateStatus;
     } catch (const isouq::InterruptedError&) {
         // On MPI ranks a rank that got no signal stops with the others, as Ctrl-C.
-        if (sPrintsErrors) std::fprintf(stderr, "isouq: interrupted; no output written\n");
+        if (sPrintsErrors) std::fprintf(stderr, "isouq: interrupted; %s\n", sInterruptedNote);
         return isouq::cli::ProgressInterrupter::interrupted() ? isouq::cli::ProgressInterrupter::exitStatus() : 130;
     } catch (const std::filesystem::filesystem_error& e) {
         printError(e.what());
@@ -392,7 +395,7 @@ int isouq_cli_main(int argc, char** argv)
         return kExitBadInput;
     } catch (const std::exception& e) {
         if (isouq::cli::ProgressInterrupter::interrupted()) {
-            std::fprintf(stderr, "isouq: interrupted; no output written\n");
+            std::fprintf(stderr, "isouq: interrupted; %s\n", sInterruptedNote);
             return isouq::cli::ProgressInterrupter::exitStatus();
         }
         printError(e.what());

@@ -175,6 +175,11 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         for (const std::string& file : volumeInputFiles(in->path(f))) inputs.emplace(resolvedPath(file), file);
     }
     auto addOutput = [&](const std::string& flag, const std::string& path) {
+        // Before any frame is meshed: a FIFO there would block --resume's read, a folder fail
+        // the frame's write after the frames before it were written.
+        if (std::error_code ec; fs::exists(path, ec) && !fs::is_regular_file(path, ec))
+            throw InputError(flag + " " + path + " is not a regular file (a folder, device, FIFO or socket), which the "
+                "output would replace");
         const std::string r = resolvedPath(path);
         if (auto i = inputs.find(r); i != inputs.end())
             throw InputError(flag + " " + path + " is the input '" + i->second + "'; refusing to overwrite an input");
@@ -196,6 +201,14 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     base.summaryPath.clear();
     nlohmann::json isovalueSource = base.read.contains("isovalue") ? nlohmann::json("given") : nlohmann::json();
 
+    // What a kept frame's PLY header must show of this run's settings: its isovalue (below), the
+    // method, the encoding and the colour columns of --color-by. What the file does not record
+    // (the grid, hidden-feature settings) is not compared (docs/sequences.md "Resuming").
+    const std::string wantMethod = request.frame.mesh.value("linear_only", false)
+        ? std::string("linear") : request.frame.mesh.value("method", std::string("weno"));
+    const bool wantAscii = request.frame.write.value("format", std::string("binary")) == "ascii";
+    const bool wantColor = request.frame.color.contains("measure") && !request.frame.color["measure"].is_null();
+
     std::vector<nlohmann::json> entries(frames.size());
     std::mutex mutex;
     std::size_t done = 0;
@@ -209,20 +222,42 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         r.hiddenOutput = hidden ? hidden->path(f) : "";
         nlohmann::json s, entry;
         std::string source;
-        // Outputs appear atomically, so one that exists is complete; it is kept if it was made at
-        // this run's isovalue (its PLY header says which).
+        // Outputs appear atomically, so one that reads back is complete (one that does not, a copy
+        // cut short, is meshed again); it is kept if its header shows this run's settings.
         PlyInfo info;
-        if (request.resume && fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput)))
-            s = summarizeMesh(readPly(r.output, &info));
+        Mesh kept;
+        if (request.resume && fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput))) try {
+                kept = readPly(r.output, &info);
+            } catch (const IoError& e) {
+                info = PlyInfo();
+                std::lock_guard<std::mutex> lock(mutex);
+                if (warnings) warnings->push_back("frame " + std::to_string(f) + ": meshed again, as " + e.what());
+            }
         const bool keep = info.isovalue &&
-            (!with.read.contains("isovalue") || float(with.read["isovalue"].get<double>()) == *info.isovalue);
+            (!with.read.contains("isovalue") || float(with.read["isovalue"].get<double>()) == *info.isovalue) &&
+            info.method == wantMethod && (info.format == "ascii") == wantAscii && kept.vertexAttributes.has(col::kRed) == wantColor;
         if (keep) {
+            s = summarizeMesh(kept);
             s["isovalue"] = *info.isovalue;
+            std::lock_guard<std::mutex> lock(mutex);
+            if (method.is_null()) method = info.method;
             source = "resumed";
             entry = frameEntry(f, r.read["input"], r.output, s);
             entry["resumed"] = true;
         } else {
-            GraphResult result = runGraph(parseGraph(meshGraph(r)), interrupter);
+            GraphResult result;
+            // A frame that fails ends the run; the frames written so far stay (as after Ctrl-C).
+            const auto failed = [&](const char* what) {
+                return "frame " + std::to_string(f) + ": " + what + " (the frames finished before it are written; "
+                    "--resume keeps them)";
+            };
+            try {
+                result = runGraph(parseGraph(meshGraph(r)), interrupter);
+            } catch (const IoError& e) {
+                throw IoError(failed(e.what()));
+            } catch (const InputError& e) {
+                throw InputError(failed(e.what()));
+            }
             s = result.outputs.at(kMeshGraphSummary).at("summary");
             source = s.value("isovalue_source", std::string());
             entry = frameEntry(f, r.read["input"], r.output, s);

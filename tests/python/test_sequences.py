@@ -126,3 +126,42 @@ def test_ctrl_c_leaves_every_finished_frame_and_nothing_partial(isouq_cli, tmp_p
         assert len(ply_io.read_ply(str(p)).positions) > 1000  # complete
     assert not (tmp_path / "s.json").exists()
     assert not any(".tmp" in name for _, _, files in os.walk(tmp_path) for name in files)
+    assert err.strip().endswith("isouq: interrupted; the frames finished so far are written (--resume keeps them)")
+
+
+def test_resume_meshes_again_what_it_cannot_keep(isouq_cli, tmp_path):
+    """Found by a hostile sweep (docs/hardening.md, 7 Dec): --resume stopped at an output cut
+    short, kept frames made with another method or format, and blocked on a FIFO."""
+    fog_cache(tmp_path / "cache", empty=())
+    args = ["cache/fluid_data_####.vdb", "-k", "0.05", "-o", "o/m.####.ply"]
+    run(isouq_cli, *args, cwd=tmp_path)
+    fresh = (tmp_path / "o/m.0004.ply").read_bytes()
+    (tmp_path / "o/m.0004.ply").write_bytes(fresh[:5000])  # a copy cut short
+    run(isouq_cli, *args, "--resume", "--summary", "r.json", cwd=tmp_path)
+    assert (tmp_path / "o/m.0004.ply").read_bytes() == fresh
+    summary = json.loads((tmp_path / "r.json").read_text())
+    assert summary["totals"]["resumed"] == 5 and not summary["frames"][3].get("resumed")
+    assert summary["method"] == "weno"  # was null when every frame was kept
+    # Another method, encoding or colouring: nothing is kept.
+    for other in (["-m", "linear"], ["--ply-format", "ascii"], ["--color-by", "err_est"]):
+        run(isouq_cli, *args, *other, "--resume", "--summary", "r.json", cwd=tmp_path)
+        summary = json.loads((tmp_path / "r.json").read_text())
+        assert summary["totals"]["resumed"] == 0, other
+        run(isouq_cli, *args, cwd=tmp_path)  # back to the first settings
+    # A FIFO at a frame's output: refused before any frame is written, with or without --resume.
+    os.remove(tmp_path / "o/m.0002.ply")
+    os.remove(tmp_path / "o/m.0001.ply")
+    os.mkfifo(tmp_path / "o/m.0002.ply")
+    for resume in ([], ["--resume"]):
+        proc = run(isouq_cli, *args, *resume, cwd=tmp_path, check=False)
+        assert proc.returncode == 2 and "not a regular file" in proc.stderr, proc.stderr
+        assert not (tmp_path / "o/m.0001.ply").exists()
+
+
+def test_a_frame_that_fails_says_which_and_what_stays(isouq_cli, tmp_path):
+    fog_cache(tmp_path / "cache", empty=())
+    (tmp_path / "cache/fluid_data_0004.vdb").write_bytes(b"garbage")
+    proc = run(isouq_cli, "cache/fluid_data_####.vdb", "-k", "0.05", "-o", "o/m.####.ply", cwd=tmp_path, check=False)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith("isouq: error: frame 4: ") and "--resume keeps them" in lines[0]

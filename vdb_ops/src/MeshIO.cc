@@ -634,7 +634,7 @@ private:
                 minRow += ascii ? 1 : typeSize(p.isList ? p.countType : p.type);
             if (e.count > remaining / minRow)
                 fail("truncated data (header announces " + std::to_string(e.count) + " " +
-                     e.name + "s, the file is too short)");
+                     (e.name == "vertex" ? std::string("vertices") : e.name + "s") + ", the file is too short)");
             remaining -= e.count * minRow;
         }
     }
