@@ -107,6 +107,16 @@ private:
     std::thread mThread;
 };
 
+/// A forked child has none of the parent's threads (the Workers, TBB's): a call would wait for
+/// ever on a thread that is not there. The first call of any kind records the process.
+void checkNotForked()
+{
+    static const pid_t firstCaller = ::getpid();
+    if (::getpid() != firstCaller)
+        throw std::runtime_error("isouq was used before this process was forked, and its threads did not come "
+            "along: use multiprocessing's 'spawn' or 'forkserver' start method, or import isouq in the child only");
+}
+
 /// Runs @a work on the calling thread's Worker (in a TBB arena of @a threads, 0 for all cores)
 /// with the GIL released; every 20 ms the caller takes the GIL back to run Python's signal
 /// handlers (PyErr_CheckSignals: only the main thread has any), and a raised KeyboardInterrupt
@@ -118,12 +128,7 @@ auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb
     if (threads < 0 || threads > isouq::kMaxThreads)
         throw isouq::InputError("threads must be 0 (every core) or 1 to " + std::to_string(isouq::kMaxThreads) +
             ", got " + std::to_string(threads));
-    // A forked child has none of the parent's threads (its workers, TBB's): a call would wait for
-    // ever on a worker that is not there.
-    static const pid_t firstCaller = ::getpid();
-    if (::getpid() != firstCaller)
-        throw std::runtime_error("isouq was used before this process was forked, and its threads did not come "
-            "along: use multiprocessing's 'spawn' or 'forkserver' start method, or import isouq in the child only");
+    checkNotForked();
     thread_local Worker worker;
     Worker* mine = &worker; // a thread_local named inside the job would be the worker thread's
     CancelInterrupter interrupter;
@@ -217,6 +222,7 @@ struct EdgeScratch {
 /// buckets' prefix sums. Returns (edges E x 2 uint32, corner_edges 3M uint32).
 py::tuple edgesOf(const MeshHandle& handle)
 {
+    checkNotForked(); // TBB runs the loops below
     const isouq::Mesh& mesh = handle.data->mesh;
     const std::size_t n = mesh.positions.size(), corners = 3 * mesh.triangles.size();
     if (corners >= std::size_t(std::numeric_limits<std::uint32_t>::max()))
@@ -299,6 +305,7 @@ nodes::CookContext cookAlone(const std::string& type, const nlohmann::json& give
 /// The CLI's writer of a path (MeshGraph.cc: write_vtp for .vtp, else write_ply), atomic.
 void writeMesh(const MeshHandle& handle, const std::string& path, const std::string& format)
 {
+    checkNotForked(); // the writer formats on a TBB task
     std::string ext = std::filesystem::path(path).extension().string();
     for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
     const bool vtp = ext == ".vtp";

@@ -242,8 +242,8 @@ def test_a_forked_child_raises_rather_than_hangs(isouq):
     pid = os.fork()
     if pid == 0:  # the child: the parent's worker thread did not come along
         os.close(read)
-        try:
-            isouq.mesh("field:tangle", resolution=16)
+        try:  # another entry point than the parent's first: each is checked
+            isouq.load("field:tangle", resolution=16)
             message = b"no error"
         except RuntimeError as e:
             message = str(e).encode()
