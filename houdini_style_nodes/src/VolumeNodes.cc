@@ -16,6 +16,7 @@
 #include <isouq/VolumeSources.h>
 
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -35,6 +36,17 @@ KeepBlocks keepFromString(const std::string& s)
     if (s == "non_constant") return KeepBlocks::NonConstant;
     if (s == "all") return KeepBlocks::All;
     return KeepBlocks::Crossing;
+}
+
+/// The isovalue parameter as the float32 the grids hold; beyond float32 it is refused as given,
+/// not as the infinity it would round to.
+float isovalueParm(const ParmValues& p)
+{
+    const double k = p.getFloat("isovalue");
+    if (std::fabs(k) > double(std::numeric_limits<float>::max()))
+        throw std::invalid_argument("parameter 'isovalue': " + nlohmann::json(k).dump() +
+            " is beyond float32's range (the samples are float32)");
+    return float(k);
 }
 
 void cookReadVolume(CookContext& ctx)
@@ -57,7 +69,7 @@ void cookReadVolume(CookContext& ctx)
         const auto d = p.at("domain").get<std::array<double, 2>>();
         request.domain = std::make_pair(d[0], d[1]);
     }
-    if (p.isSet("isovalue")) request.isovalue = float(p.getFloat("isovalue"));
+    if (p.isSet("isovalue")) request.isovalue = isovalueParm(p);
     request.keep = keepFromString(p.getString("keep"));
     request.allowEmpty = p.getBool("allow_empty");
 
@@ -91,7 +103,7 @@ void cookMesh(CookContext& ctx)
     const ParmValues& p = ctx.parms;
     const bool linearOnly = p.getBool("linear_only");
     MeshSettings settings;
-    settings.isovalue = p.isSet("isovalue") ? float(p.getFloat("isovalue")) : volume.isovalue;
+    settings.isovalue = p.isSet("isovalue") ? isovalueParm(p) : volume.isovalue;
     if (settings.isovalue != volume.isovalue && volume.keptBlocks < volume.denseBlocks)
         throw std::invalid_argument("parameter 'isovalue': differs from the volume's (" +
             std::to_string(volume.isovalue) + "), and the sparse copy of a dense source only holds "

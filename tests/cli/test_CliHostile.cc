@@ -102,9 +102,10 @@ TEST_CASE("CLI hostile: wrong successes are errors now", "[cli][hostile]")
             "float32", {out});
     }
     SECTION("an empty number") { requireRefused(runCli("mesh field:sphere --isovalue '' -q -o out.ply", dir), "--isovalue", {out}); }
-    SECTION("a NaN isovalue is named as given")
+    SECTION("a NaN isovalue, or one beyond float32, is named as given")
     {
         requireRefused(runCli("mesh field:sphere --isovalue nan -q -o out.ply", dir), "finite number, got nan", {out});
+        requireRefused(runCli("mesh field:sphere --isovalue 1e40 -q -o out.ply", dir), "1e+40 is beyond float32", {out});
     }
     SECTION("a raw scan with no cell")
     {
