@@ -127,6 +127,9 @@ def _register(source, spacing, origin):
                              "openvdb/python/pyopenvdb.h were not found)")
         return _core.register_pyopenvdb(source)
     import numpy as np
+    if isinstance(source, np.ma.MaskedArray):
+        raise InputError("a masked array's mask would be dropped: fill it first, e.g. a.filled(np.nan) or "
+                         "a.filled(a.min())")
     array = np.asarray(source)
     if array.dtype == np.float16:
         array = array.astype(np.float32)  # exact; the reader takes float32/64 and integers

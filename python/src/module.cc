@@ -117,6 +117,17 @@ void checkNotForked()
             "along: use multiprocessing's 'spawn' or 'forkserver' start method, or import isouq in the child only");
 }
 
+/// A Python int of worker threads: 0 (every core) to kMaxThreads (TBB crashed setting up 10^7).
+int threadsOf(const py::int_& value)
+{
+    int overflow = 0;
+    const long long n = PyLong_AsLongLongAndOverflow(value.ptr(), &overflow);
+    if (overflow != 0 || n < 0 || n > isouq::kMaxThreads)
+        throw isouq::InputError("threads must be 0 (every core) or 1 to " + std::to_string(isouq::kMaxThreads) +
+            ", got " + std::string(py::str(value)));
+    return int(n);
+}
+
 /// Runs @a work on the calling thread's Worker (in a TBB arena of @a threads, 0 for all cores)
 /// with the GIL released; every 20 ms the caller takes the GIL back to run Python's signal
 /// handlers (PyErr_CheckSignals: only the main thread has any), and a raised KeyboardInterrupt
@@ -125,9 +136,6 @@ template <typename Work>
 auto runCancellable(int threads, Work work) -> decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)))
 {
     using Result = decltype(work(static_cast<openvdb::util::NullInterrupter*>(nullptr)));
-    if (threads < 0 || threads > isouq::kMaxThreads)
-        throw isouq::InputError("threads must be 0 (every core) or 1 to " + std::to_string(isouq::kMaxThreads) +
-            ", got " + std::to_string(threads));
     checkNotForked();
     thread_local Worker worker;
     Worker* mine = &worker; // a thread_local named inside the job would be the worker thread's
@@ -337,8 +345,10 @@ py::dict resultOf(nodes::GraphResult result)
 }
 
 /// Runs a graph document (a dict) or file (a path) and keeps the meshes of @a keep.
-py::dict run(const py::object& graph, const std::vector<std::string>& keep, int threads, const std::string& outputDir)
+py::dict run(const py::object& graph, const std::vector<std::string>& keep, const py::int_& threadCount,
+    const std::string& outputDir)
 {
+    const int threads = threadsOf(threadCount);
     nodes::GraphOptions options;
     options.outputDir = outputDir;
     nodes::Graph parsed;
@@ -439,8 +449,9 @@ struct VolumeHandle {
     std::shared_ptr<const isouq::LoadedVolume> volume;
 };
 
-py::tuple load(const nlohmann::json& parms, int threads)
+py::tuple load(const nlohmann::json& parms, const py::int_& threadCount)
 {
+    const int threads = threadsOf(threadCount);
     std::vector<std::string> warnings;
     auto volume = runCancellable(threads, [&](openvdb::util::NullInterrupter* interrupter) {
         nodes::CookContext ctx = cookAlone("read_volume", parms, nullptr, &warnings, nullptr, interrupter);
@@ -539,6 +550,6 @@ PYBIND11_MODULE(_core, m)
 #else
         false;
 #endif
-    m.def("load", [](const py::dict& parms, int threads) { return load(fromPython(parms), threads); },
+    m.def("load", [](const py::dict& parms, const py::int_& threads) { return load(fromPython(parms), threads); },
         py::arg("parms"), py::arg("threads") = 0);
 }

@@ -206,6 +206,8 @@ def test_arguments_that_would_be_ignored_or_misread_raise(isouq, data_dir, tmp_p
     cases = {
         "threads huge (TBB crashed)": (lambda: isouq.mesh(ball, isovalue=0.5, threads=10**7), "threads must be"),
         "threads negative": (lambda: isouq.mesh(ball, isovalue=0.5, threads=-2), "threads must be"),
+        "threads beyond 64 bits (was pybind11's TypeError)": (lambda: isouq.load(ball, threads=10**30), "got 1000000000000000000000000000000"),
+        "a masked array (its mask was dropped)": (lambda: isouq.mesh(np.ma.masked_less(ball, 0.5), isovalue=0.5), "mask"),
         "NaN isovalue": (lambda: isouq.mesh(ball, isovalue=float("nan")), "isovalue must be a finite number"),
         "infinite spacing": (lambda: isouq.mesh(bucky, spacing=(float("inf"), 1, 1)), "spacing must be"),
         "NaN domain": (lambda: isouq.mesh("formula:x", domain=(float("nan"), 1)), "domain must be"),
