@@ -124,7 +124,7 @@ int threadsOf(const py::int_& value)
     const long long n = PyLong_AsLongLongAndOverflow(value.ptr(), &overflow);
     if (overflow != 0 || n < 0 || n > isouq::kMaxThreads)
         throw isouq::InputError("threads must be 0 (every core) or 1 to " + std::to_string(isouq::kMaxThreads) +
-            ", got " + std::string(py::str(value)));
+            ", got " + py::str(static_cast<const py::handle&>(value)).cast<std::string>());
     return int(n);
 }
 
