@@ -204,9 +204,12 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     // What a kept frame's PLY header must show of this run's settings: its isovalue (below), the
     // method, the encoding and the colour columns of --color-by. What the file does not record
     // (the grid, hidden-feature settings) is not compared (docs/sequences.md "Resuming").
-    const std::string wantMethod = request.frame.mesh.value("linear_only", false)
-        ? std::string("linear") : request.frame.mesh.value("method", std::string("weno"));
-    const bool wantAscii = request.frame.write.value("format", std::string("binary")) == "ascii";
+    const auto given = [](const nlohmann::json& parms, const char* node, const char* token) {
+        return parms.value(token, findNodeType(node)->findParm(token)->defaultValue.get<std::string>());
+    };
+    const std::string wantMethod =
+        request.frame.mesh.value("linear_only", false) ? std::string("linear") : given(request.frame.mesh, "mesh", "method");
+    const bool wantAscii = given(request.frame.write, "write_ply", "format") == "ascii";
     const bool wantColor = request.frame.color.contains("measure") && !request.frame.color["measure"].is_null();
 
     std::vector<nlohmann::json> entries(frames.size());
