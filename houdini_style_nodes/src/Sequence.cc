@@ -175,11 +175,6 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         for (const std::string& file : volumeInputFiles(in->path(f))) inputs.emplace(resolvedPath(file), file);
     }
     auto addOutput = [&](const std::string& flag, const std::string& path) {
-        // Before any frame is meshed: a FIFO there would block --resume's read, a folder fail
-        // the frame's write after the frames before it were written.
-        if (std::error_code ec; fs::exists(path, ec) && !fs::is_regular_file(path, ec))
-            throw InputError(flag + " " + path + " is not a regular file (a folder, device, FIFO or socket), which the "
-                "output would replace");
         const std::string r = resolvedPath(path);
         if (auto i = inputs.find(r); i != inputs.end())
             throw InputError(flag + " " + path + " is the input '" + i->second + "'; refusing to overwrite an input");
@@ -195,6 +190,10 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
     for (const std::optional<FramePattern>* p : {&out, static_cast<const std::optional<FramePattern>*>(&hidden)})
         if (*p && !fs::path((*p)->path(0)).parent_path().empty()) fs::create_directories(fs::path((*p)->path(0)).parent_path());
+    // Every frame's output checked as one output is, before any frame is meshed: a FIFO there
+    // would block --resume's read, a folder fail that frame after the frames before it.
+    for (const auto& [resolved, path] : outputs)
+        if (path != request.frame.summaryPath) checkWritable(path);
 
     MeshGraphRequest base = request.frame;
     base.read["allow_empty"] = true;

@@ -173,8 +173,9 @@ def _read_parms(source, registration, isovalue, grid, resolution, domain, spacin
     """The read_volume parameters, as `isouq mesh INPUT --isovalue ... --grid ...` sets them."""
     if registration is None:
         read = {"input": os.fsdecode(source)}
-        if tuple(_vec3(spacing, "spacing")) != (1, 1, 1):
-            read["spacing"] = _vec3(spacing, "spacing")
+        spacing = _vec3(spacing, "spacing")
+        if tuple(spacing) != (1, 1, 1):
+            read["spacing"] = spacing
     else:
         read = {"input": registration.input}
         if resolution is not None or domain is not None:
