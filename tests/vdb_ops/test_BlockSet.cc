@@ -1,6 +1,7 @@
 // The mesher's block set (vdb_ops/src/BlockScratch.h, SPEC §9): the blocks around (or up to)
 // every leaf with an active voxel, marked in parallel, against a brute-force set of the same
-// blocks; and the huge-page storage of its per-block arrays and the heap (FreshPages.h).
+// blocks; and the huge-page storage of its per-block arrays and the heap, and where a read
+// buffer starts in its page (FreshPages.h).
 #include "BlockScratch.h"
 
 #include <openvdb/openvdb.h>
@@ -139,4 +140,32 @@ TEST_CASE("FreshPages: populateHeapTop faults in the heap's spare top", "[pages]
     isouq::mc_internal::populateHeapTop();
     CHECK(before < pages / 2); // most of the spare top was never touched
     CHECK(resident() == pages);
+}
+
+TEST_CASE("FreshPages: a SlabBuffer puts a read's bytes at their file offset within a page", "[pages]")
+{
+    // The rule (FreshPages.h SlabBuffer): the destination sits 0 bytes, or 64-71 when the type's
+    // alignment forbids 0, past the file byte within a 4 KiB page; never 1-63 (the slow copies).
+    // Every offset of two pages, for each sample type a scan has, and the whole span writable
+    // (the sanitizer build checks that it lies in the buffer).
+    auto check = [](auto sample) {
+        using T = decltype(sample);
+        isouq::mc_internal::SlabBuffer<T> buffer;
+        std::size_t wrong = 0;
+        for (std::uint64_t offset = 1000000; offset < 1000000 + 8192; ++offset) {
+            const std::size_t n = 1 + offset % 3000;
+            T* p = buffer.place(n, offset);
+            const std::uintptr_t at = reinterpret_cast<std::uintptr_t>(p);
+            const std::uint64_t past = (at % 4096 + 4096 - offset % 4096) % 4096;
+            const bool aligned = offset % alignof(T) == 0;
+            wrong += at % alignof(T) != 0 || (aligned ? past != 0 : past < 64 || past > 71);
+            std::fill(p, p + n, T(1));
+        }
+        INFO(sizeof(T) << "-byte samples");
+        CHECK(wrong == 0);
+    };
+    check(std::uint8_t{});
+    check(std::int16_t{});
+    check(float{});
+    check(double{});
 }

@@ -4,7 +4,8 @@
 // MADV_POPULATE_WRITE (one call for a whole range, which writes nothing) about 1 us, and a 2 MiB
 // page 0.12-0.17 ms (bench/page_cost.py). Used by the mesher (one process and bricks) for every
 // per-block array, mask list and output column it allocates afresh: at N = 1024 a call's page
-// faults went from about 5 300 to 185 (bench/journal/2026-12-04.md, 11:42).
+// faults went from about 5 300 to 185 (bench/journal/2026-12-04.md, 11:42). Also where in a
+// page a buffer that pread fills starts (SlabBuffer).
 #pragma once
 
 #include <tbb/parallel_for.h>
@@ -280,6 +281,33 @@ private:
         return records * sizeof(T) >= kHugeArrayFrom ? kHugePage / sizeof(T) : records;
     }
     std::vector<PageVector<T>> mChunks;
+};
+
+/// Storage that a pread fills at copy speed. The kernel copies file pages to user memory with
+/// `rep movsb`, which on this AMD EPYC (Zen 3) runs 3.4x slower when the destination sits 1-31
+/// bytes past the source within a 4 KiB page, as malloc's buffers of 128 KiB or more always do
+/// (page + 16): reading the 1 GiB raw scan, 510 against 150 ms (bench/journal/2026-12-07.md,
+/// "Reads at copy speed"). place() puts @a n values where the bytes read from file byte
+/// @a fileOffset land at that byte's offset within a page (or 64-71 bytes past it when alignof(T)
+/// forbids); what it held before is dropped.
+template <typename T>
+class SlabBuffer {
+public:
+    T* place(std::size_t n, std::uint64_t fileOffset)
+    {
+        constexpr std::size_t kPage = 4096, kSlack = (2 * kPage + sizeof(T) - 1) / sizeof(T);
+        if (mStore.size() < n + kSlack) {
+            std::vector<T>().swap(mStore);
+            mStore.resize(n + kSlack);
+        }
+        const std::uintptr_t at = reinterpret_cast<std::uintptr_t>(mStore.data());
+        std::uintptr_t shift = (fileOffset % kPage + kPage - at % kPage) % kPage;
+        if (shift % alignof(T)) shift = shift + alignof(T) - shift % alignof(T) + 64;
+        return reinterpret_cast<T*>(at + shift);
+    }
+
+private:
+    std::vector<T> mStore;
 };
 
 } // namespace isouq::mc_internal

@@ -44,11 +44,16 @@ RawSlabReader::RawSlabReader(const std::string& path, const Coord& dims, SampleT
 
 RawSlabReader::~RawSlabReader() { ::close(mFd); }
 
+std::uint64_t RawSlabReader::sliceOffset(int z) const
+{
+    return mOffset + std::uint64_t(mDims.x()) * std::uint64_t(mDims.y()) * sampleBytes(mType) * std::uint64_t(z);
+}
+
 void RawSlabReader::readSlices(int z0, int z1, char* out) const
 {
     const std::size_t slice = std::size_t(mDims.x()) * mDims.y() * sampleBytes(mType);
     std::size_t left = slice * std::size_t(z1 - z0);
-    off_t at = off_t(mOffset + slice * std::size_t(z0));
+    off_t at = off_t(sliceOffset(z0));
     while (left > 0) {
         const ssize_t got = ::pread(mFd, out, left, at);
         if (got < 0 && errno == EINTR) continue;

@@ -172,7 +172,10 @@ public:
 
     const Coord& dims() const { return mDims; }
     SampleType type() const { return mType; }
-    /// Reads the slices [z0, z1) as stored, (z1 - z0) X Y samples, into @a out.
+    /// The file byte where slice @a z starts (to place a SlabBuffer).
+    std::uint64_t sliceOffset(int z) const;
+    /// Reads the slices [z0, z1) as stored, (z1 - z0) X Y samples, into @a out (best placed by
+    /// a SlabBuffer: FreshPages.h).
     /// @throw InputError on a short read (the file changed) or a read error.
     void readSlices(int z0, int z1, char* out) const;
 

@@ -31,6 +31,7 @@ namespace sources_internal {
 
 using openvdb::FloatTree;
 using LeafT = FloatTree::LeafNodeType;
+using mc_internal::SlabBuffer;
 
 std::string fmt(double v)
 {
@@ -169,10 +170,13 @@ class LayerSparsifier {
 public:
     using S = Samples<W>;
 
-    LayerSparsifier(const Coord& dims, KeepBlocks rule, double k)
+    LayerSparsifier(const LayerSparsifier&) = delete; // mRing points into mRingStore
+    LayerSparsifier& operator=(const LayerSparsifier&) = delete;
+    /// @a firstSlice: the file byte where slice 0 starts when slices are read with pread (SlabBuffer).
+    LayerSparsifier(const Coord& dims, KeepBlocks rule, double k, std::uint64_t firstSlice = 0)
         : mDims(dims), mSlice(std::size_t(dims.x()) * dims.y()), mRule(rule), mK(k),
           mBx((dims.x() + kBlock - 1) / kBlock), mBy((dims.y() + kBlock - 1) / kBlock),
-          mLayers((dims.z() + kBlock - 1) / kBlock), mRing(mSlice * 2 * kBlock),
+          mLayers((dims.z() + kBlock - 1) / kBlock), mRing(mRingStore.place(mSlice * 2 * kBlock, firstSlice)),
           mOwnLo(S::kFloat ? mSlice : 0), mOwnHi(mOwnLo.size()), mOwnSum(mSlice),
           mLeaves(std::size_t(mBx) * mBy), mTiles(mLeaves.size())
     {
@@ -191,7 +195,7 @@ public:
         return {z0, z1};
     }
     /// Where slice @a z of the ring goes; the slices of a layer are contiguous.
-    W* slot(int z) { return mRing.data() + std::size_t(z % (2 * kBlock)) * mSlice; }
+    W* slot(int z) { return mRing + std::size_t(z % (2 * kBlock)) * mSlice; }
 
     /// Summarises @a part of layer @a bk, whose slices are in the ring (rows in parallel when
     /// @a threaded).
@@ -434,7 +438,8 @@ private:
     KeepBlocks mRule;
     double mK;
     int mBx, mBy, mLayers;
-    std::vector<W> mRing;
+    SlabBuffer<W> mRingStore;
+    W* mRing; // in mRingStore
     std::array<std::vector<W>, 3> mColLo, mColHi; // per column and part: z min/max
     std::vector<W> mOwnLo, mOwnHi;                // floating point: finite own values only
     std::vector<typename S::ColumnSum> mOwnSum;
@@ -606,15 +611,15 @@ decltype(auto) withRawSamples(SampleType type, F&& f)
 /// Reads slices [z0, z1) of @a reader as W: in place when W is the stored type (after a byte
 /// swap on a big-endian host), else through @a bytes (float64 rounded to float).
 template <typename W>
-void readAs(const RawSlabReader& reader, int z0, int z1, W* out, std::vector<char>& bytes)
+void readAs(const RawSlabReader& reader, int z0, int z1, W* out, SlabBuffer<char>& bytes)
 {
     const std::size_t n = std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(z1 - z0);
     if (reader.type() == SampleType::Float64) {
-        bytes.resize(n * sizeof(double));
-        reader.readSlices(z0, z1, bytes.data());
+        const char* in = bytes.place(n * sizeof(double), reader.sliceOffset(z0));
+        reader.readSlices(z0, z1, const_cast<char*>(in));
         for (std::size_t i = 0; i < n; ++i) {
             char b[sizeof(double)];
-            std::memcpy(b, bytes.data() + i * sizeof(double), sizeof(double));
+            std::memcpy(b, in + i * sizeof(double), sizeof(double));
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
             std::reverse(b, b + sizeof(double));
 #endif
@@ -653,23 +658,25 @@ RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* hist
 {
     return withRawSamples(reader.type(), [&](auto sample) {
         using W = decltype(sample);
-        tbb::enumerable_thread_specific<std::pair<std::vector<W>, std::vector<char>>> buffers;
+        tbb::enumerable_thread_specific<std::pair<SlabBuffer<W>, SlabBuffer<char>>> buffers;
         tbb::enumerable_thread_specific<RawStats> parts;
         forSlabs(z0, z1, [&](int a, int b) {
             throwIfInterrupted(interrupter); // a default isovalue reads the whole scan twice
-            auto& [values, bytes] = buffers.local();
-            values.resize(std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(b - a));
-            readAs(reader, a, b, values.data(), bytes);
+            auto& [slab, bytes] = buffers.local();
+            const std::size_t n = std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(b - a);
+            W* const values = slab.place(n, reader.sliceOffset(a));
+            readAs(reader, a, b, values, bytes);
             RawStats& part = parts.local();
             if constexpr (Samples<W>::kFloat) {
                 if (!histogramRange) {
-                    for (const W v : values)
-                        if (std::isfinite(v)) part.range.add(v);
+                    for (std::size_t i = 0; i < n; ++i)
+                        if (std::isfinite(values[i])) part.range.add(values[i]);
                     return;
                 }
                 part.counts.resize(256, 0);
-                for (const W v : values)
-                    if (std::isfinite(v)) ++part.counts[histogramBin(v, histogramRange->min, histogramRange->max)];
+                for (std::size_t i = 0; i < n; ++i)
+                    if (std::isfinite(values[i]))
+                        ++part.counts[histogramBin(values[i], histogramRange->min, histogramRange->max)];
             } else {
                 constexpr std::size_t kValues = std::size_t(1) << (8 * sizeof(W));
                 part.counts.resize(kValues, 0);
@@ -677,7 +684,7 @@ RawStats rawStats(const RawSlabReader& reader, int z0, int z1, const Range* hist
                 // increments of one counter when neighbouring samples are equal.
                 constexpr int kWays = sizeof(W) == 1 ? 4 : 1;
                 std::vector<std::uint32_t> tally(kWays * kValues, 0);
-                const std::size_t n = values.size(), lowest = std::size_t(-std::ptrdiff_t(std::numeric_limits<W>::lowest()));
+                const std::size_t lowest = std::size_t(-std::ptrdiff_t(std::numeric_limits<W>::lowest()));
                 std::size_t i = 0;
                 for (; i + kWays <= n; i += kWays)
                     for (int w = 0; w < kWays; ++w) ++tally[w * kValues + std::size_t(values[i + w] + lowest)];
@@ -797,8 +804,8 @@ SparseResult sparsifyRaw(const RawSlabReader& reader, int layer0, int layer1, Ke
     LayerRuns runs(layer0, layer1, threads);
     withRawSamples(reader.type(), [&](auto sample) {
         using W = decltype(sample);
-        tbb::enumerable_thread_specific<LayerSparsifier<W>> sparsifiers(dims, rule, isovalue);
-        tbb::enumerable_thread_specific<std::vector<char>> bytes;
+        tbb::enumerable_thread_specific<LayerSparsifier<W>> sparsifiers(dims, rule, isovalue, reader.sliceOffset(0));
+        tbb::enumerable_thread_specific<SlabBuffer<char>> bytes;
         tbb::enumerable_thread_specific<std::pair<Range, std::size_t>> totals;
         tbb::parallel_for(0, threads, [&](int t) {
             auto& [range, kept] = totals.local();
