@@ -284,12 +284,13 @@ private:
 };
 
 /// Storage that a pread fills at copy speed. The kernel copies file pages to user memory with
-/// `rep movsb`, which on this AMD EPYC (Zen 3) runs 3.4x slower when the destination sits 1-31
-/// bytes past the source within a 4 KiB page, as malloc's buffers of 128 KiB or more always do
-/// (page + 16): reading the 1 GiB raw scan, 510 against 150 ms (bench/journal/2026-12-07.md,
-/// "Reads at copy speed"). place() puts @a n values where the bytes read from file byte
-/// @a fileOffset land at that byte's offset within a page (or 64-71 bytes past it when alignof(T)
-/// forbids); what it held before is dropped.
+/// `rep movsb`, which on the AMD EPYC (Zen 3) isouq is measured on runs 3.4x slower when the
+/// destination sits 8-24 bytes past the source within a 4 KiB page (0 and 32 or more are fast;
+/// glibc's memcpy avoids the case): every block that malloc maps on its own starts at page + 16.
+/// 1 GiB read in 8 MiB preads: 510 against 150 ms (bench/journal/2026-12-07.md, "Reads at copy
+/// speed"). place() puts @a n values where the bytes read from file byte @a fileOffset land at
+/// that byte's offset within a page (or 64-71 bytes past it when alignof(T) forbids); what it
+/// held before is dropped.
 template <typename T>
 class SlabBuffer {
 public:
