@@ -11,10 +11,14 @@ namespace {
 using nodes::ParmSpec;
 using nodes::ParmType;
 
-/// Re-checks the value with the graph's rules, so a flag and a graph reject the same values.
+/// Re-checks the value with the graph's rules, so a flag and a graph reject the same values, but
+/// for a path's ending: `-o` names a .ply or a .vtp, and the graph builder picks the writer by it
+/// (MeshGraph.cc writer()).
 void store(nlohmann::json& values, const ParmSpec& spec, const nlohmann::json& value)
 {
-    if (std::string why = nodes::checkParmValue(spec, value); !why.empty()) throw CLI::ValidationError(spec.flag, why);
+    ParmSpec rules = spec;
+    rules.extensions.clear();
+    if (std::string why = nodes::checkParmValue(rules, value); !why.empty()) throw CLI::ValidationError(spec.flag, why);
     values[spec.token] = value;
 }
 

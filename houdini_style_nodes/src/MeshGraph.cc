@@ -1,10 +1,9 @@
 // isouq nodes: the graph that meshes one input (MeshGraph.h).
 #include "isouq/nodes/MeshGraph.h"
 
-#include <isouq/Errors.h>
+#include "isouq/nodes/Parm.h"
 
-#include <cctype>
-#include <filesystem>
+#include <isouq/Errors.h>
 
 namespace isouq::nodes {
 namespace {
@@ -23,18 +22,15 @@ bool hasExactField(const nlohmann::json& read)
     return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0;
 }
 
-bool isVtp(const std::string& path)
-{
-    std::string ext = std::filesystem::path(path).extension().string();
-    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    return ext == ".vtp";
-}
-
-/// The writer of @a path, chosen by its extension (SPEC §10 "Formats"): write_vtp for .vtp,
-/// else write_ply with the request's PLY parameters.
+/// The writer of @a path, chosen by its extension (SPEC §10 "Formats"): write_ply, with the
+/// request's PLY parameters, for .ply; write_vtp for .vtp.
 nlohmann::json writer(const char* id, const std::string& path, const nlohmann::json& plyParms, const std::string& mesh)
 {
-    if (!isVtp(path)) {
+    const std::string ext = pathExtension(path);
+    if (ext != ".ply" && ext != ".vtp")
+        throw InputError("output '" + path + "' is not a mesh format isouq writes: name it .ply (PLY with every "
+                         "attribute) or .vtp (VTK XML PolyData)");
+    if (ext == ".ply") {
         nlohmann::json parms = plyParms;
         parms["path"] = path;
         return node(id, "write_ply", parms, {{"mesh", mesh}});

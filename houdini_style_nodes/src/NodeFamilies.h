@@ -33,6 +33,13 @@ inline ParmSpec menuParm(std::string token, std::string label, std::vector<std::
     return p;
 }
 
+/// @a p (a Path) accepting only paths with one of @a extensions (lowercase, ".ply").
+inline ParmSpec ending(ParmSpec p, std::vector<std::string> extensions)
+{
+    p.extensions = std::move(extensions);
+    return p;
+}
+
 inline ParmSpec ranged(ParmSpec p, ParmRange soft, ParmRange hard)
 {
     p.softRange = soft;

@@ -93,8 +93,8 @@ nlohmann::json nodeTypesJson()
         for (const ParmSpec& p : t.parms)
             parms.push_back({{"token", p.token}, {"label", p.label}, {"type", toString(p.type)},
                 {"default", p.defaultValue}, {"soft_range", rangeJson(p.softRange)},
-                {"hard_range", rangeJson(p.hardRange)}, {"menu", p.menu}, {"tooltip", p.tooltip},
-                {"flag", p.flag}});
+                {"hard_range", rangeJson(p.hardRange)}, {"menu", p.menu}, {"extensions", p.extensions},
+                {"tooltip", p.tooltip}, {"flag", p.flag}});
         nodes.push_back({{"type", t.type}, {"label", t.label}, {"description", t.description},
             {"inputs", portsJson(t.inputs)}, {"outputs", portsJson(t.outputs)}, {"parms", parms}});
     }

@@ -29,19 +29,10 @@ PlyOptions plyOptionsOf(const MeshData& m)
     return ply;
 }
 
-bool hasExtension(const std::string& path, const char* extension)
-{
-    std::string ext = fs::path(path).extension().string();
-    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    return ext == extension;
-}
-
 void cookWritePly(CookContext& ctx)
 {
     auto mesh = ctx.input("mesh")->mesh;
     const std::string path = ctx.parms.getString("path");
-    if (hasExtension(path, ".vtp"))
-        throw std::invalid_argument("parameter 'path': " + path + " is a .vtp file; write it with a write_vtp node");
     PlyOptions options = plyOptionsOf(*mesh);
     if (ctx.parms.getString("format") == "ascii") options.encoding = PlyEncoding::Ascii;
     if (ctx.ranks) { // every rank writes its rows into the one file (docs/mpi.md)
@@ -61,8 +52,6 @@ void cookWriteVtp(CookContext& ctx)
 {
     auto mesh = ctx.input("mesh")->mesh;
     const std::string path = ctx.parms.getString("path");
-    if (!hasExtension(path, ".vtp"))
-        throw std::invalid_argument("parameter 'path': " + path + " does not end in .vtp (VTK XML PolyData)");
     const MeshFileOptions options = plyOptionsOf(*mesh);
     ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addVtp(mesh->mesh, path, options); }, true});
 }
@@ -128,9 +117,9 @@ void addOutputNodes(std::vector<NodeType>& types)
     types.push_back({"write_ply", "Write PLY",
         "Writes the mesh as PLY with every attribute (SPEC §6; docs/ply-format.md), binary little-endian or "
         "ascii, atomically.",
-        {parm("path", "Path", ParmType::Path, "out.ply",
+        {ending(parm("path", "Path", ParmType::Path, "out.ply",
              "Output mesh (.ply, binary little-endian; with isouq mesh a .vtp path writes VTK XML PolyData)",
-             "-o,--output"),
+             "-o,--output"), {".ply"}),
             menuParm("format", "Format", {"binary", "ascii"}, "binary",
                 "PLY encoding: binary little-endian, or ascii (what meshio 7 reads face columns from)",
                 "--ply-format")},
@@ -140,7 +129,7 @@ void addOutputNodes(std::vector<NodeType>& types)
         "Writes the mesh as VTK XML PolyData for ParaView and VTK (SPEC §10; docs/vtp-format.md): every vertex "
         "column as point data and every face column as cell data under its own name, the PLY header "
         "comments as field data; raw binary appended, atomically.",
-        {parm("path", "Path", ParmType::Path, "out.vtp", "Output mesh (.vtp)")},
+        {ending(parm("path", "Path", ParmType::Path, "out.vtp", "Output mesh (.vtp)"), {".vtp"})},
         {{"mesh", "mesh", "The mesh to write"}}, {}, cookWriteVtp, /*meshWriter=*/true});
 
     types.push_back({"write_summary", "Write Summary",

@@ -2,7 +2,9 @@
 #include "isouq/nodes/Parm.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
+#include <filesystem>
 #include <sstream>
 
 namespace isouq::nodes {
@@ -57,6 +59,13 @@ std::string toString(ParmType type)
     return "string";
 }
 
+std::string pathExtension(const std::string& path)
+{
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return ext;
+}
+
 std::string checkParmValue(const ParmSpec& spec, const nlohmann::json& value)
 {
     if (value.is_null()) return "";
@@ -71,7 +80,15 @@ std::string checkParmValue(const ParmSpec& spec, const nlohmann::json& value)
     case ParmType::String:
     case ParmType::Path:
         if (!value.is_string()) return "expected a string, got " + value.dump();
-        if (spec.type == ParmType::Path && value.get<std::string>().empty()) return "expected a path, got \"\"";
+        if (spec.type != ParmType::Path) return "";
+        if (value.get<std::string>().empty()) return "expected a path, got \"\"";
+        if (!spec.extensions.empty()
+            && std::find(spec.extensions.begin(), spec.extensions.end(), pathExtension(value.get<std::string>()))
+                == spec.extensions.end()) {
+            std::string list;
+            for (const std::string& e : spec.extensions) list += (list.empty() ? "" : " or ") + e;
+            return "expected a path ending in " + list + ", got " + value.dump();
+        }
         return "";
     case ParmType::Menu: {
         if (!value.is_string()) return "expected a string, got " + value.dump();

@@ -314,9 +314,7 @@ nodes::CookContext cookAlone(const std::string& type, const nlohmann::json& give
 void writeMesh(const MeshHandle& handle, const std::string& path, const std::string& format)
 {
     checkNotForked(); // the writer formats on a TBB task
-    std::string ext = std::filesystem::path(path).extension().string();
-    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    const bool vtp = ext == ".vtp";
+    const bool vtp = nodes::pathExtension(path) == ".vtp";
     const std::string normal = std::filesystem::path(path).lexically_normal().string();
     nlohmann::json parms = {{"path", normal}};
     if (!vtp) parms["format"] = format;

@@ -72,10 +72,13 @@ TEST_CASE("CLI hostile: an output that is the input is refused, the input kept",
     const fs::path& dir = tmp.path;
     const std::string original = readFile(std::string(ISOUQ_DATA_DIR) + "/bucky_32x32x32_uint8.raw");
     writeFile(dir / "bucky_32x32x32_uint8.raw", original);
-    for (const char* args : {"-o bucky_32x32x32_uint8.raw", "-o x.ply --summary ./bucky_32x32x32_uint8.raw",
-             "-o x.ply --hidden-out bucky_32x32x32_uint8.raw"}) {
+    // A mesh output that names the input is refused by its extension first (.ply or .vtp only).
+    for (const auto& [args, why] : std::vector<std::pair<std::string, std::string>>{
+             {"-o bucky_32x32x32_uint8.raw", "not a mesh format"},
+             {"-o x.ply --summary ./bucky_32x32x32_uint8.raw", "input"},
+             {"-o x.ply --hidden-out bucky_32x32x32_uint8.raw", "not a mesh format"}}) {
         INFO(args);
-        requireRefused(runCli(std::string("mesh bucky_32x32x32_uint8.raw -k 51 -q ") + args, dir), "input", {dir / "x.ply"});
+        requireRefused(runCli("mesh bucky_32x32x32_uint8.raw -k 51 -q " + args, dir), why, {dir / "x.ply"});
         CHECK(readFile(dir / "bucky_32x32x32_uint8.raw") == original);
     }
 }
@@ -644,7 +647,8 @@ TEST_CASE("CLI hostile: outputs a rename would get wrong", "[cli][hostile]")
     {
         const std::string graph = R"({"nodes": [{"id": "r", "type": "read_volume", "parms": {"input": "field:sphere"}},
             {"id": "m", "type": "mesh", "inputs": {"volume": "r"}},
-            {"id": "w", "type": "write_ply", "inputs": {"mesh": "m"}, "parms": {"path": "./g.json"}}]})";
+            {"id": "s", "type": "summary", "inputs": {"mesh": "m"}},
+            {"id": "w", "type": "write_summary", "inputs": {"summary": "s"}, "parms": {"path": "./g.json"}}]})";
         writeFile(dir / "g.json", graph);
         requireRefused(runCli("run g.json -q", dir), "the graph file", {});
         CHECK(readFile(dir / "g.json") == graph);

@@ -8,6 +8,7 @@ project's one Python PLY reader.
 import json
 import shutil
 import subprocess
+import time
 import sys
 from pathlib import Path
 
@@ -175,16 +176,34 @@ def test_ply_flags_on_a_vtp_output_are_refused(isouq_cli, tmp_path, args, words)
     assert list(tmp_path.iterdir()) == []
 
 
-def test_write_nodes_refuse_the_other_extension(isouq_cli, tmp_path):
-    for writer, path, words in (("write_ply", "a.vtp", "write it with a write_vtp node"),
-                                ("write_vtp", "a.ply", "does not end in .vtp")):
-        graph = {"nodes": [{"id": "load", "type": "read_volume", "parms": {"input": "field:sphere", "resolution": 16}},
+def test_write_nodes_refuse_other_extensions(isouq_cli, tmp_path):
+    # Checked with the graph, before anything is read or meshed (the field below is 512^3).
+    for writer, path, words in (("write_ply", "a.vtp", 'expected a path ending in .ply, got "a.vtp"'),
+                                ("write_ply", "a.vdb", 'expected a path ending in .ply, got "a.vdb"'),
+                                ("write_ply", "a", 'expected a path ending in .ply, got "a"'),
+                                ("write_vtp", "a.ply", 'expected a path ending in .vtp, got "a.ply"')):
+        graph = {"nodes": [{"id": "load", "type": "read_volume", "parms": {"input": "field:sphere", "resolution": 512}},
                            {"id": "mesh", "type": "mesh", "inputs": {"volume": "load"}},
                            {"id": "save", "type": writer, "inputs": {"mesh": "mesh"}, "parms": {"path": path}}]}
         (tmp_path / "g.json").write_text(json.dumps(graph))
+        start = time.monotonic()
         proc = run(isouq_cli, "run", tmp_path / "g.json", "-d", tmp_path / "out", "-q")
-        assert proc.returncode == 2 and words in proc.stderr, proc.stderr
-        assert not (tmp_path / "out" / path).exists()
+        assert proc.returncode == 2 and words in proc.stderr and "node 'save'" in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1 and time.monotonic() - start < 5
+        assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("out", ["x.vdb", "x.obj", "x", "x.ply.gz", "x\nb.stl"])
+def test_mesh_outputs_other_than_ply_and_vtp_are_refused(isouq_cli, tmp_path, out):
+    # -o picks the writer by the extension (SPEC §10): anything else would be PLY bytes under a
+    # name that promises another format. The upper-case .PLY and .VTP are the same formats.
+    proc = run(isouq_cli, "mesh", "field:sphere", "-n", 16, "-o", tmp_path / out, "-q")
+    assert proc.returncode == 2 and proc.stderr.startswith("isouq: error: output ")
+    assert "name it .ply" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert list(tmp_path.iterdir()) == []
+    for good in ("x.PLY", "x.VTP"):
+        assert run(isouq_cli, "mesh", "field:sphere", "-n", 16, "-o", tmp_path / good, "-q").returncode == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.PLY", "x.VTP"]
 
 
 BLENDER_IMPORT = """

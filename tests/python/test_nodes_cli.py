@@ -93,10 +93,13 @@ PORT = {"type": "object", "required": ["name", "type", "description", "optional"
         "properties": {"name": {"type": "string"}, "type": {"enum": PORT_TYPES},
                        "description": {"type": "string"}, "optional": {"type": "boolean"}}}
 PARM = {"type": "object",
-        "required": ["token", "label", "type", "default", "soft_range", "hard_range", "menu", "tooltip", "flag"],
+        "required": ["token", "label", "type", "default", "soft_range", "hard_range", "menu", "extensions", "tooltip",
+                     "flag"],
         "properties": {"token": {"type": "string", "pattern": "^[a-z][a-z0-9_]*$"}, "label": {"type": "string"},
                        "type": {"enum": PARM_TYPES}, "soft_range": RANGE, "hard_range": RANGE,
-                       "menu": {"type": "array", "items": {"type": "string"}}, "tooltip": {"type": "string"},
+                       "menu": {"type": "array", "items": {"type": "string"}},
+                       "extensions": {"type": "array", "items": {"type": "string", "pattern": "^[.][a-z0-9]+$"}},
+                       "tooltip": {"type": "string"},
                        "flag": {"type": "string"}}}
 SCHEMA = {"type": "object", "required": ["format", "format_version", "nodes"],
           "properties": {"format": {"enum": ["isouq-nodes"]}, "format_version": {"type": "integer"},

@@ -28,6 +28,7 @@ struct ParmSpec {
     ParmRange softRange;         ///< where a slider goes; values outside are allowed
     ParmRange hardRange;         ///< values outside are errors (each component for vectors)
     std::vector<std::string> menu; ///< the tokens a Menu accepts
+    std::vector<std::string> extensions; ///< the endings a Path accepts (pathExtension); empty: any
     std::string tooltip;
     std::string flag;            ///< CLI11 name(s) on the subcommands that expose it, e.g. "--isovalue,-k"
 };
@@ -39,6 +40,9 @@ struct PortSpec {
     std::string description;
     bool optional = false;   ///< inputs only
 };
+
+/// The extension of @a path in lowercase (".ply", ".vtp"; "" without one): how outputs are told apart.
+std::string pathExtension(const std::string& path);
 
 /// "" if @a value is a valid value of @a spec (null is valid: unset), else the reason,
 /// e.g. "expected a number, got \"abc\"" or "150 is outside the hard range [0, 100]".
