@@ -4,6 +4,7 @@
 #include "ValidateCommand.h"
 
 #include <isouq/Columns.h>
+#include <isouq/Errors.h>
 #include <isouq/MarchingCubes.h>
 #include <isouq/MeshIO.h>
 #include <isouq/Validation.h>
@@ -279,7 +280,7 @@ int runValidate(const Options& o)
     writeText(out / "convergence.csv", convCsv.str());
     writeText(out / "scans.csv", scanCsv.str());
     std::printf("wrote %s/{validation.json,tables.md,stats.csv,agreement.csv,convergence.csv,scans.csv}\n",
-        o.outDir.c_str());
+        isouq::oneLine(o.outDir, std::string::npos).c_str());
 
     const std::string script = nodes::resourcePath("plot_validation.py").string();
     const std::string command = "/usr/bin/python3 '" + script + "' '" + (out / "validation.json").string() + "'";

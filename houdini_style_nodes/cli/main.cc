@@ -91,22 +91,25 @@ void printError(const std::string& message)
 void printNotes(const std::vector<std::string>& notes, bool quiet)
 {
     if (quiet) return;
-    for (const std::string& note : notes) std::fprintf(stderr, "isouq: %s\n", note.c_str());
+    for (const std::string& note : notes) std::fprintf(stderr, "isouq: %s\n", isouq::oneLine(note).c_str());
 }
+
+/// @a path as printed on stdout, one line whatever its bytes (escaped as error lines are).
+std::string shown(const std::string& path) { return isouq::oneLine(path, std::string::npos); }
 
 void printResult(const nlohmann::json& s, const std::string& summaryPath)
 {
     std::printf("wrote %s: %zu vertices, %zu triangles, %zu components, %zu boundary edges, "
                 "%zu non-manifold edges (isovalue %g, %s)\n",
-        s["output"].get<std::string>().c_str(), s["vertices"].get<std::size_t>(),
+        shown(s["output"].get<std::string>()).c_str(), s["vertices"].get<std::size_t>(),
         s["triangles"].get<std::size_t>(), s["components"].get<std::size_t>(),
         s["boundary_edges"].get<std::size_t>(), s["non_manifold_edges"].get<std::size_t>(),
         s["isovalue"].get<double>(), s["method"].get<std::string>().c_str());
     if (s.contains("hidden") && s["hidden"].contains("output"))
         std::printf("wrote %s: hidden features, %zu -> %zu components\n",
-            s["hidden"]["output"].get<std::string>().c_str(), s["hidden"]["components_before"].get<std::size_t>(),
+            shown(s["hidden"]["output"].get<std::string>()).c_str(), s["hidden"]["components_before"].get<std::size_t>(),
             s["hidden"]["components_after"].get<std::size_t>());
-    if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", summaryPath.c_str());
+    if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", shown(summaryPath).c_str());
 }
 
 /// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings. On
@@ -153,7 +156,7 @@ int runMesh(const MeshGraphRequest& request, const std::string& saveGraph, bool 
     if (ranks && ranks->rank() != 0) return 0;
     if (!saveGraph.empty()) isouq::writeTextFileAtomic(saveGraph, doc.dump(2) + "\n");
     printResult(result.outputs.at(isouq::nodes::kMeshGraphSummary).at("summary"), request.summaryPath);
-    if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", saveGraph.c_str(), saveGraph.c_str());
+    if (!saveGraph.empty()) std::printf("wrote %s: the graph (isouq run %s)\n", shown(saveGraph).c_str(), shown(saveGraph).c_str());
     return 0;
 }
 
@@ -202,7 +205,7 @@ int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
         std::snprintf(prefix, sizeof(prefix), "frame %zu/%zu, ETA %.0f s | ", done, total, eta);
         progress.setPrefix(prefix);
         std::printf("frame %d: %s %s: %zu vertices, %zu triangles, %zu components\n", frame,
-            e.value("resumed", false) ? "kept" : "wrote", e["output"].get<std::string>().c_str(),
+            e.value("resumed", false) ? "kept" : "wrote", shown(e["output"].get<std::string>()).c_str(),
             e["vertices"].get<std::size_t>(), e["triangles"].get<std::size_t>(), e["components"].get<std::size_t>());
         std::fflush(stdout);
     };
@@ -212,7 +215,7 @@ int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
     std::printf("%zu frames (%d empty, %d kept from an earlier run): %zu vertices, %zu triangles (isovalue %s)\n",
         t["frames"].get<std::size_t>(), t["empty"].get<int>(), t["resumed"].get<int>(), t["vertices"].get<std::size_t>(),
         t["triangles"].get<std::size_t>(), s["isovalue"].dump().c_str());
-    if (!request.frame.summaryPath.empty()) std::printf("wrote %s: sequence summary (JSON)\n", request.frame.summaryPath.c_str());
+    if (!request.frame.summaryPath.empty()) std::printf("wrote %s: sequence summary (JSON)\n", shown(request.frame.summaryPath).c_str());
     return 0;
 }
 
@@ -224,7 +227,7 @@ int runGraphFile(const std::string& path, const std::string& outDir, bool quiet,
     if (!outDir.empty()) std::filesystem::create_directories(outDir);
     const isouq::nodes::GraphResult result = runWithProgress(graph, quiet, ranks);
     if (ranks && ranks->rank() != 0) return 0;
-    for (const std::string& file : result.written) std::printf("wrote %s\n", file.c_str());
+    for (const std::string& file : result.written) std::printf("wrote %s\n", shown(file).c_str());
     return 0;
 }
 

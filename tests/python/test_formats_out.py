@@ -291,3 +291,16 @@ def test_saved_graph_reproduces_vtp_and_colours(isouq_cli, tmp_path):
     assert proc.returncode == 0, proc.stderr
     for name in ("mc.vtp", "hf.ply"):
         assert (first / name).read_bytes() == (again / name).read_bytes(), name
+
+
+def test_wrote_lines_stay_one_line_each(isouq_cli, tmp_path):
+    # A newline in an output's name split its stdout line in two (hostile sweep, 7 Dec): the
+    # names are escaped as error lines escape them; the files keep their real names.
+    names = ["a\nb.ply", "s\x1b[31m.json", "hidden\r.ply"]
+    proc = run(isouq_cli, "mesh", "field:tangle", "-n", 24, "--hidden-features", "-o", tmp_path / names[0],
+               "--summary", tmp_path / names[1], "--hidden-out", tmp_path / names[2], "-q")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert len(lines) == 3 and all(line.startswith("wrote ") for line in lines), lines
+    assert "a\\nb.ply: " in lines[0] and "hidden\\r.ply: hidden features" in lines[1] and "s\\x1b[31m.json" in lines[2]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)

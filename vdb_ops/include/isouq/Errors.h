@@ -30,10 +30,10 @@ struct InterruptedError : std::runtime_error {
 /// and the Python module raises it: control characters in the user strings it echoes (names,
 /// paths, formulas) are escaped, and so is every byte that is not part of valid UTF-8 (a file
 /// name's Latin-1, say), so the line is valid UTF-8 for a terminal and for Python's str; it stops
-/// after 1000 characters, never inside a character, saying how many it left out.
-inline std::string oneLine(const std::string& message)
+/// after @a kMax characters, never inside a character, saying how many it left out (the CLI's
+/// "wrote PATH" lines on stdout escape a path whole: std::string::npos).
+inline std::string oneLine(const std::string& message, std::size_t kMax = 1000)
 {
-    constexpr std::size_t kMax = 1000;
     const auto escaped = [](unsigned char c) {
         char hex[8];
         std::snprintf(hex, sizeof(hex), "\\x%02x", c);
