@@ -297,7 +297,8 @@ int isouq_cli_main(int argc, char** argv)
     mesh->add_flag("--quiet,-q", quiet, "No progress bar or notes on stderr");
     isouq::nodes::SequenceRequest sequence;
     auto* frames = mesh->add_option("--frames", sequence.frames,
-        "Sequences (INPUT with #### or %04d): frames A-B or A-B:STEP (default: every frame on disk)");
+        "Sequences (INPUT with #### or %04d): frames A-B or A-B:STEP (default: every frame on disk)")
+        ->check([](const std::string& v) { return v.empty() ? std::string("expected A, A-B or A-B:STEP, got ''") : ""; });
     auto* resume = mesh->add_flag("--resume", sequence.resume, "Sequences: keep the frames whose outputs exist");
     auto* skipMissing = mesh->add_flag("--skip-missing", sequence.skipMissing,
         "Sequences: mesh the frames that exist instead of refusing a range with missing ones");

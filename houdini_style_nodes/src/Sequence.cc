@@ -98,19 +98,32 @@ std::optional<FramePattern> parseFramePattern(const std::string& path)
     const std::size_t slash = path.find_last_of('/');
     const std::size_t nameStart = slash == std::string::npos ? 0 : slash + 1;
     const std::string name = path.substr(nameStart);
-    static const std::regex placeholder(R"(#+|%(0?)([0-9]*)d)");
-    std::smatch last;
-    for (auto it = std::sregex_iterator(name.begin(), name.end(), placeholder); it != std::sregex_iterator(); ++it)
-        last = *it;
-    if (last.empty()) {
-        if (std::regex_search(path.substr(0, nameStart), placeholder))
+    // The placeholders of @a text; "%%" is a literal % (printf), matched first so that "%%04d" is none.
+    const auto placeholders = [](const std::string& text) {
+        static const std::regex placeholder(R"(%%|#+|%(0?)([0-9]*)d)");
+        std::vector<std::smatch> found;
+        for (auto it = std::sregex_iterator(text.begin(), text.end(), placeholder); it != std::sregex_iterator(); ++it)
+            if (it->str() != "%%") found.push_back(*it);
+        return found;
+    };
+    const std::vector<std::smatch> inName = placeholders(name);
+    if (inName.size() > 1)
+        throw InputError("'" + path + "': two frame numbers (#### or %04d) in the file name; a sequence has one");
+    if (inName.empty()) {
+        const std::string folders = path.substr(0, nameStart);
+        if (!placeholders(folders).empty())
             throw InputError("'" + path + "': the frame number (#### or %04d) must be in the file name, not a folder");
         return std::nullopt;
     }
+    const std::smatch& last = inName.front();
     FramePattern p;
     p.prefix = path.substr(0, nameStart + std::size_t(last.position()));
     p.suffix = path.substr(nameStart + std::size_t(last.position() + last.length()));
     const std::string text = last.str();
+    if (text[0] == '%') // a printf pattern: its "%%" are single % in the file names
+        for (std::string* part : {&p.prefix, &p.suffix})
+            for (std::size_t at = part->find("%%"); at != std::string::npos; at = part->find("%%", at + 1))
+                part->erase(at, 1);
     p.width = text[0] == '#' ? int(text.size()) : last[2].length() > 2 ? 0 : last[2].length() ? std::stoi(last[2].str()) : 1;
     if (p.width < 1 || p.width > 9) throw InputError("'" + path + "': frame numbers are padded to 1-9 digits");
     return p;

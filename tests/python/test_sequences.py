@@ -71,6 +71,22 @@ def test_default_isovalue_comes_from_the_first_frame_with_data(isouq_cli, tmp_pa
     assert headers == pytest.approx([summary["isovalue"]] * 3)
 
 
+def test_patterns_with_a_literal_percent_two_numbers_or_no_range(isouq_cli, tmp_path):
+    # printf's "%%" is a literal % (it was read as the start of %04d); a name with two frame
+    # numbers is refused (only the last was replaced); an empty --frames is an error (was "all").
+    fog_cache(tmp_path / "cache", frames=range(1, 3), empty=())
+    for f in (1, 2):
+        os.rename(tmp_path / "cache" / f"fluid_data_{f:04d}.vdb", tmp_path / "cache" / f"fog100%_{f:04d}.vdb")
+    run(isouq_cli, "cache/fog100%%_%04d.vdb", "-k", "0.1", "-o", "out/m%%.%04d.ply", cwd=tmp_path)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["m%.0001.ply", "m%.0002.ply"]
+    for args, words in ((["cache/fog100%%_%04d.vdb", "-o", "out/a_####_####.ply"], "two frame numbers"),
+                        (["cache/f_##_####.vdb", "-o", "out/a_####.ply"], "two frame numbers"),
+                        (["cache/fog100%%_%04d.vdb", "--frames", "", "-o", "out/b_####.ply"], "got ''")):
+        proc = run(isouq_cli, *args, "-k", "0.1", cwd=tmp_path, check=False)
+        assert proc.returncode == 2 and words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["m%.0001.ply", "m%.0002.ply"]
+
+
 def test_missing_frames_are_listed_before_any_work(isouq_cli, tmp_path):
     fog_cache(tmp_path / "cache", frames=[1, 2, 3, 6], empty=())
     proc = run(isouq_cli, "cache/fluid_data_####.vdb", "-k", "0.1", "-o", "out/m.####.ply", cwd=tmp_path, check=False)
