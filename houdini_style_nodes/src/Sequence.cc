@@ -78,6 +78,7 @@ nlohmann::json frameEntry(int frame, const std::string& file, const std::string&
         {"boundary_edges", s.at("boundary_edges")}, {"empty", s.at("vertices").get<std::size_t>() == 0}};
     for (const ColumnInfo& c : columnTable())
         if (c.summary && s.contains(std::string(c.name))) e[std::string(c.name)] = s[std::string(c.name)];
+    if (s.contains("grid")) e["grid"] = s["grid"]; // not for a frame kept by --resume
     if (s.contains("hidden"))
         e["hidden"] = {{"components_before", s["hidden"].at("components_before")},
             {"components_after", s["hidden"].at("components_after")}};
@@ -228,7 +229,8 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     std::mutex mutex;
     std::size_t done = 0;
     nlohmann::json method;
-    // Meshes frame i (or reads it back with --resume); returns its mesh summary's isovalue source.
+    // Meshes frame i (or reads it back with --resume); returns its mesh summary's isovalue source,
+    // isovalue and grid (none for a kept frame).
     auto runFrame = [&](std::size_t i, const MeshGraphRequest& with) {
         const int f = frames[i];
         MeshGraphRequest r = with;
@@ -284,16 +286,26 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         std::lock_guard<std::mutex> lock(mutex);
         entries[i] = entry;
         if (onFrame) onFrame(++done, frames.size(), f, entry);
-        return std::make_pair(source, s.value("isovalue", 0.0));
+        return std::make_tuple(source, s.value("isovalue", 0.0), s.value("grid", std::string()));
     };
 
-    // One isovalue for every frame: given, or the default of the first frame that has data.
+    // One isovalue for every frame: given, or the default of the first frame that has data. One
+    // grid for every frame of a .vdb cache: --grid, or the one the first frame meshed (its first
+    // float grid), so that a frame whose grids come in another order meshes the same field.
     std::size_t next = 0;
     nlohmann::json isovalue = base.read.contains("isovalue") ? base.read["isovalue"] : nlohmann::json();
-    while (isovalue.is_null() && next < frames.size()) {
-        const auto [source, k] = runFrame(next, base);
+    bool findGrid = !base.read.contains("grid") && pathExtension(in->path(0)) == ".vdb";
+    while ((isovalue.is_null() || findGrid) && next < frames.size()) {
+        const auto [source, k, grid] = runFrame(next, base);
         ++next;
-        if (source == "empty grid") continue;
+        if (findGrid && !grid.empty()) {
+            base.read["grid"] = grid;
+            findGrid = false;
+            if (warnings)
+                warnings->push_back("grid '" + grid + "' (the first float grid of frame " + std::to_string(frames[next - 1]) +
+                    ") for every frame; set it with --grid");
+        }
+        if (!isovalue.is_null() || source == "empty grid") continue;
         isovalue = k;
         isovalueSource = source + " of frame " + std::to_string(frames[next - 1]);
         base.read["isovalue"] = k;
@@ -335,6 +347,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         {"sequence", {{"input", inputPattern}, {"output", request.frame.output}, {"first", range.front()},
                          {"last", range.back()}, {"step", range.size() > 1 ? range[1] - range[0] : 1}}}};
     if (hidden) summary["sequence"]["hidden_output"] = request.frame.hiddenOutput;
+    if (base.read.contains("grid")) summary["sequence"]["grid"] = base.read["grid"];
     summary["timings_ms"] = {{"total", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count()}};
     if (!request.frame.summaryPath.empty()) writeTextFileAtomic(request.frame.summaryPath, summary.dump(2) + "\n");
     return summary;

@@ -128,6 +128,7 @@ void cookMesh(CookContext& ctx)
     out->uncertainty = !linearOnly;
     out->info["input"] = volume.input;
     out->info["description"] = volume.description;
+    out->info["grid"] = volume.grid->getName(); // a .vdb's grid, or the name a dense source gets
     out->info["isovalue_source"] = settings.isovalue == volume.isovalue ? volume.isovalueSource : "given";
     // The input's affine (SPEC §10 "Formats"), also the PLY's `comment isouq index_to_world`.
     out->info["index_to_world"] = out->mesh.indexToWorld;

@@ -69,8 +69,8 @@ def cli_summary(isouq_cli, tmp_path, *args):
 
 
 def comparable(summary):
-    """A summary without what names the run (input, output, description) or times it."""
-    return {k: v for k, v in summary.items() if k not in ("timings_ms", "input", "output", "description")}
+    """A summary without what names the run (input, grid, output, description) or times it."""
+    return {k: v for k, v in summary.items() if k not in ("timings_ms", "input", "grid", "output", "description")}
 
 
 @pytest.mark.parametrize("name,isovalue", [("bucky_32x32x32_uint8.raw", 51), ("fuel_64x64x64_uint8.raw", None)])

@@ -87,6 +87,32 @@ def test_patterns_with_a_literal_percent_two_numbers_or_no_range(isouq_cli, tmp_
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["m%.0001.ply", "m%.0002.ply"]
 
 
+def test_without_grid_every_frame_meshes_the_first_frames_grid(isouq_cli, tmp_path):
+    # Frame 2 stores flame before density and frame 3 only flame: each used to mesh its own
+    # first grid (hostile sweep, 7 Dec). Now density throughout, as with --grid density.
+    fog_cache(tmp_path / "a", frames=range(1, 4), empty=())
+    for f, order in ((1, ("density", "flame")), (2, ("flame", "density")), (3, ("flame",))):
+        density = vdb.read(str(tmp_path / "a" / f"fluid_data_{f:04d}.vdb"), "density")
+        flame = vdb.FloatGrid(background=0.0)
+        flame.name = "flame"
+        flame.gridClass = vdb.GridClass.FOG_VOLUME
+        flame.fill((20, 20, 20), (23, 23, 23), 0.9)
+        grids = {"density": density, "flame": flame}
+        vdb.write(str(tmp_path / "a" / f"fluid_data_{f:04d}.vdb"), grids=[grids[g] for g in order])
+    run(isouq_cli, "a/fluid_data_####.vdb", "-k", "0.1", "-o", "x/m.####.ply", "--summary", "x.json", cwd=tmp_path)
+    run(isouq_cli, "a/fluid_data_####.vdb", "-k", "0.1", "--grid", "density", "-o", "y/m.####.ply",
+        "--summary", "y.json", cwd=tmp_path)
+    x, y = (json.loads((tmp_path / n).read_text()) for n in ("x.json", "y.json"))
+    assert x["sequence"]["grid"] == "density" and [e["grid"] for e in x["frames"]] == ["density"] * 3
+    assert [e["vertices"] for e in x["frames"]] == [e["vertices"] for e in y["frames"]]
+    assert x["frames"][1]["vertices"] > 0 and x["frames"][2]["empty"]
+    for f in (1, 2, 3):
+        assert (tmp_path / f"x/m.{f:04d}.ply").read_bytes() == (tmp_path / f"y/m.{f:04d}.ply").read_bytes()
+    proc = subprocess.run([isouq_cli, "mesh", "a/fluid_data_####.vdb", "-k", "0.1", "-o", "z/m.####.ply"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert "grid 'density' (the first float grid of frame 1) for every frame" in proc.stderr, proc.stderr
+
+
 def test_missing_frames_are_listed_before_any_work(isouq_cli, tmp_path):
     fog_cache(tmp_path / "cache", frames=[1, 2, 3, 6], empty=())
     proc = run(isouq_cli, "cache/fluid_data_####.vdb", "-k", "0.1", "-o", "out/m.####.ply", cwd=tmp_path, check=False)
