@@ -22,15 +22,10 @@ bool hasExactField(const nlohmann::json& read)
     return input.rfind("field:", 0) == 0 || input.rfind("formula:", 0) == 0;
 }
 
-/// The writer of @a path, chosen by its extension (SPEC §10 "Formats"): write_ply, with the
-/// request's PLY parameters, for .ply; write_vtp for .vtp.
+/// The writer of @a path (meshWriterType), write_ply with the request's PLY parameters.
 nlohmann::json writer(const char* id, const std::string& path, const nlohmann::json& plyParms, const std::string& mesh)
 {
-    const std::string ext = pathExtension(path);
-    if (ext != ".ply" && ext != ".vtp")
-        throw InputError("output '" + path + "' is not a mesh format isouq writes: name it .ply (PLY with every "
-                         "attribute) or .vtp (VTK XML PolyData)");
-    if (ext == ".ply") {
+    if (std::string(meshWriterType(path)) == "write_ply") {
         nlohmann::json parms = plyParms;
         parms["path"] = path;
         return node(id, "write_ply", parms, {{"mesh", mesh}});
@@ -41,6 +36,15 @@ nlohmann::json writer(const char* id, const std::string& path, const nlohmann::j
 }
 
 } // namespace
+
+const char* meshWriterType(const std::string& path)
+{
+    const std::string ext = pathExtension(path);
+    if (ext == ".ply") return "write_ply";
+    if (ext == ".vtp") return "write_vtp";
+    throw InputError("output '" + path + "' is not a mesh format isouq writes: name it .ply (PLY with every "
+                     "attribute) or .vtp (VTK XML PolyData)");
+}
 
 nlohmann::json meshGraph(const MeshGraphRequest& request)
 {

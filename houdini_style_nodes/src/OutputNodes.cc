@@ -7,7 +7,6 @@
 
 #include <isouq/MeshIO.h>
 
-#include <cctype>
 #include <cstdlib>
 #include <filesystem>
 #include <stdexcept>

@@ -310,11 +310,12 @@ nodes::CookContext cookAlone(const std::string& type, const nlohmann::json& give
     return ctx;
 }
 
-/// The CLI's writer of a path (MeshGraph.cc: write_vtp for .vtp, else write_ply), atomic.
+/// The CLI's writer of a path (meshWriterType: write_ply for .ply, write_vtp for .vtp), atomic.
 void writeMesh(const MeshHandle& handle, const std::string& path, const std::string& format)
 {
     checkNotForked(); // the writer formats on a TBB task
-    const bool vtp = nodes::pathExtension(path) == ".vtp";
+    const std::string type = nodes::meshWriterType(path);
+    const bool vtp = type == "write_vtp";
     const std::string normal = std::filesystem::path(path).lexically_normal().string();
     nlohmann::json parms = {{"path", normal}};
     if (!vtp) parms["format"] = format;
@@ -323,7 +324,7 @@ void writeMesh(const MeshHandle& handle, const std::string& path, const std::str
     py::gil_scoped_release release;
     isouq::checkWritable(normal);
     std::vector<nodes::PendingWrite> writes;
-    cookAlone(vtp ? "write_vtp" : "write_ply", parms, &writes, nullptr, &input, nullptr);
+    cookAlone(type, parms, &writes, nullptr, &input, nullptr);
     isouq::OutputBatch batch;
     for (const nodes::PendingWrite& w : writes) w.stage(batch);
     batch.commit();

@@ -233,7 +233,7 @@ def test_arguments_that_would_be_ignored_or_misread_raise(isouq, data_dir, tmp_p
         m.write(tmp_path / "f.ply", format="bogus")
     with pytest.raises(isouq.InputError, match="NUL"):  # was written to tmp_path / "x"
         m.write(str(tmp_path / "x\0y.ply"))
-    with pytest.raises(isouq.InputError, match="ending in .ply"):  # was PLY bytes named .obj
+    with pytest.raises(isouq.InputError, match="not a mesh format isouq writes"):  # was PLY bytes named .obj
         m.write(tmp_path / "x.obj")
     assert sorted(p.name for p in tmp_path.iterdir()) == []
     # A bytes path is a path, as os.fsdecode reads it.

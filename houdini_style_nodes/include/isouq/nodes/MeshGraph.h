@@ -30,9 +30,14 @@ struct MeshGraphRequest {
 /// output is the summary the command prints.
 inline constexpr const char* kMeshGraphSummary = "summary";
 
+/// The node type that writes a mesh to @a path, by its ending (SPEC §10 "Formats"): "write_ply"
+/// for .ply, "write_vtp" for .vtp (any case). @throw InputError for any other ending.
+const char* meshWriterType(const std::string& path);
+
 /// The graph document (the JSON `isouq run` reads; `--save-graph` writes it). Paths stay as
 /// given, so the saved graph run from the same folder writes the same files.
-/// @throw InputError if write_ply parameters are given for a .vtp output.
+/// @throw InputError for an output that is neither .ply nor .vtp, or write_ply parameters given
+/// for a .vtp output.
 nlohmann::json meshGraph(const MeshGraphRequest& request);
 
 } // namespace isouq::nodes
