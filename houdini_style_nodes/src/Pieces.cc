@@ -145,21 +145,12 @@ int ownerOfRow(const std::vector<std::uint64_t>& begin, std::uint64_t g, int siz
     return int(std::upper_bound(begin.begin(), begin.end(), g) - begin.begin() - 1) % size;
 }
 
-std::string lowerExtension(const std::string& path)
-{
-    std::string ext;
-    if (const auto dot = path.find_last_of('.'); dot != std::string::npos && path.find('/', dot) == std::string::npos)
-        ext = path.substr(dot);
-    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    return ext;
-}
-
 } // namespace
 
 VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openvdb::util::NullInterrupter* interrupter)
 {
     const bool dense = isDensePieceInput(request.input);
-    if (!dense && lowerExtension(request.input) != ".vdb") {
+    if (!dense && pathExtension(request.input) != ".vdb") {
         std::error_code ec;
         // A missing input: one process's error line (loadVolume throws it).
         if (request.input.rfind("memory:", 0) != 0 && !std::filesystem::exists(request.input, ec)) loadVolume(request);

@@ -51,8 +51,7 @@ std::uint64_t RawSlabReader::sliceOffset(int z) const
 
 void RawSlabReader::readSlices(int z0, int z1, char* out) const
 {
-    const std::size_t slice = std::size_t(mDims.x()) * mDims.y() * sampleBytes(mType);
-    std::size_t left = slice * std::size_t(z1 - z0);
+    std::size_t left = std::size_t(sliceOffset(z1) - sliceOffset(z0));
     off_t at = off_t(sliceOffset(z0));
     while (left > 0) {
         const ssize_t got = ::pread(mFd, out, left, at);

@@ -615,8 +615,8 @@ void readAs(const RawSlabReader& reader, int z0, int z1, W* out, SlabBuffer<char
 {
     const std::size_t n = std::size_t(reader.dims().x()) * reader.dims().y() * std::size_t(z1 - z0);
     if (reader.type() == SampleType::Float64) {
-        const char* in = bytes.place(n * sizeof(double), reader.sliceOffset(z0));
-        reader.readSlices(z0, z1, const_cast<char*>(in));
+        char* const in = bytes.place(n * sizeof(double), reader.sliceOffset(z0));
+        reader.readSlices(z0, z1, in);
         for (std::size_t i = 0; i < n; ++i) {
             char b[sizeof(double)];
             std::memcpy(b, in + i * sizeof(double), sizeof(double));

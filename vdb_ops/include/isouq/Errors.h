@@ -30,9 +30,9 @@ struct InterruptedError : std::runtime_error {
 /// and the Python module raises it: control characters in the user strings it echoes (names,
 /// paths, formulas) are escaped, and so is every byte that is not part of valid UTF-8 (a file
 /// name's Latin-1, say), so the line is valid UTF-8 for a terminal and for Python's str; it stops
-/// after @a kMax characters, never inside a character, saying how many it left out (the CLI's
+/// after @a maxChars characters, never inside a character, saying how many it left out (the CLI's
 /// "wrote PATH" lines on stdout escape a path whole: std::string::npos).
-inline std::string oneLine(const std::string& message, std::size_t kMax = 1000)
+inline std::string oneLine(const std::string& message, std::size_t maxChars = 1000)
 {
     const auto escaped = [](unsigned char c) {
         char hex[8];
@@ -56,7 +56,7 @@ inline std::string oneLine(const std::string& message, std::size_t kMax = 1000)
     };
     std::string out;
     for (std::size_t i = 0; i < message.size(); ++i) {
-        if (out.size() >= kMax) return out + "... (" + std::to_string(message.size() - i) + " more characters)";
+        if (out.size() >= maxChars) return out + "... (" + std::to_string(message.size() - i) + " more characters)";
         const unsigned char c = static_cast<unsigned char>(message[i]);
         if (c == '\n') out += "\\n";
         else if (c == '\r') out += "\\r";
