@@ -3,6 +3,7 @@
 // counts for tiles and plateaus (SPEC §1, §8, §9).
 #include <isouq/GridMetadata.h>
 #include <isouq/MarchingCubes.h>
+#include <isouq/McTables.h>
 #include <isouq/VolumeSources.h>
 
 #include <openvdb/io/File.h>
@@ -13,6 +14,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <set>
 #include <numeric>
 #include <random>
 #include <cstring>
@@ -214,6 +216,79 @@ TEST_CASE("MarchingCubes: brute-force dense pass over every edge gives the same 
         CHECK(count <= 2);
         if (count == 1) CHECK((onDomainFace(edge.first) && onDomainFace(edge.second)));
     }
+}
+
+TEST_CASE("MarchingCubes: partly active data and data bounds mesh exactly the edges of meshed cells", "[mc][bruteforce]")
+{
+    // The rule of SPEC §1 from its definition: a cell is meshed when one of its corners is active
+    // and all of them lie inside the data bounds; an edge has a vertex when its ends straddle k
+    // and one of the (up to four) cells around it is meshed; each meshed cell contributes its
+    // case's triangles. Inactive voxels hold values too, on both sides of k, and the data bounds
+    // cut the active region, so cells at every block face are meshed, unmeshed and cut.
+    openvdb::initialize();
+    const int seed = GENERATE(1, 2, 3);
+    std::mt19937 rng(4321 + seed);
+    const Coord lo(-5, 2, -11), hi(18, 25, 12); // voxels written; 24^3 across block faces
+    auto grid = openvdb::FloatGrid::create(0.0f);
+    auto acc = grid->getAccessor();
+    std::uniform_int_distribution<int> level(0, 4);
+    std::bernoulli_distribution active(seed == 1 ? 0.1 : seed == 2 ? 0.4 : 0.8);
+    for (int i = lo[0]; i <= hi[0]; ++i)
+        for (int j = lo[1]; j <= hi[1]; ++j)
+            for (int k = lo[2]; k <= hi[2]; ++k) {
+                acc.setValue(Coord(i, j, k), float(level(rng)));
+                acc.setActiveState(Coord(i, j, k), active(rng));
+            }
+    const Coord boundsLo(-3, 3, -9), boundsHi(16, 23, 11);
+    grid->insertMeta(kDataBoundsMinMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(boundsLo.asPointer())));
+    grid->insertMeta(kDataBoundsMaxMeta, openvdb::Vec3IMetadata(openvdb::Vec3i(boundsHi.asPointer())));
+    const float isovalue = 2.0f;
+    auto inside = [&](const Coord& c) { return acc.getValue(c) >= isovalue; };
+    auto meshed = [&](const Coord& cell) {
+        for (int a = 0; a < 3; ++a)
+            if (cell[a] < boundsLo[a] || cell[a] + 1 > boundsHi[a]) return false;
+        for (const auto& o : kMcCornerOffset)
+            if (acc.isValueOn(cell.offsetBy(o.x, o.y, o.z))) return true;
+        return false;
+    };
+    std::set<std::array<int, 4>> expected;
+    std::size_t expectedTriangles = 0;
+    for (int i = lo[0] - 1; i <= hi[0]; ++i)
+        for (int j = lo[1] - 1; j <= hi[1]; ++j)
+            for (int k = lo[2] - 1; k <= hi[2]; ++k) {
+                const Coord c(i, j, k);
+                if (!meshed(c)) continue;
+                int cubeCase = 0;
+                for (int corner = 0; corner < 8; ++corner) {
+                    const auto& o = kMcCornerOffset[corner];
+                    cubeCase |= int(inside(c.offsetBy(o.x, o.y, o.z))) << corner;
+                }
+                expectedTriangles += kMcCases.triangleCount[cubeCase];
+                for (const McEdge& e : kMcEdges) {
+                    const Coord a = c.offsetBy(e.dx, e.dy, e.dz);
+                    const Coord b = a.offsetBy(e.axis == 0, e.axis == 1, e.axis == 2);
+                    if (inside(a) != inside(b)) expected.insert({a[0], a[1], a[2], int(e.axis)});
+                }
+            }
+    MeshSettings settings;
+    settings.isovalue = isovalue;
+    settings.provenance = true;
+    const Mesh mesh = extractIsosurface(*grid, settings);
+    const auto& ei = *mesh.vertexAttributes.find<std::int32_t>("edge_i");
+    const auto& ej = *mesh.vertexAttributes.find<std::int32_t>("edge_j");
+    const auto& ek = *mesh.vertexAttributes.find<std::int32_t>("edge_k");
+    const auto& ea = *mesh.vertexAttributes.find<std::uint8_t>("edge_axis");
+    std::set<std::array<int, 4>> got;
+    for (std::size_t v = 0; v < mesh.positions.size(); ++v) got.insert({ei[v], ej[v], ek[v], int(ea[v])});
+    REQUIRE(expected.size() > 100);
+    CHECK(got.size() == mesh.positions.size());
+    CHECK(got == expected);
+    CHECK(mesh.triangles.size() == expectedTriangles);
+    // The estimate pass fills from a wider window; its vertices are the same edges.
+    settings.uncertainty = true;
+    const Mesh withEstimates = extractIsosurface(*grid, settings);
+    CHECK(withEstimates.triangles == mesh.triangles);
+    CHECK(*withEstimates.vertexAttributes.find<std::int32_t>("edge_i") == ei);
 }
 
 TEST_CASE("MarchingCubes: a grid whose only data is one active tile meshes the tile's shell", "[mc][tiles]")

@@ -234,13 +234,14 @@ public:
         return mAccessor.getValue(origin) >= isovalue ? kAllInside : kAllOutside;
     }
 
-    /// False when every region the gather would read is on the same side of the isovalue.
+    /// False when the block and its + neighbours, whose inside bits gatherBitsAndClassify reads,
+    /// lie on the same side of the isovalue: then no owned edge crosses and no cell is a candidate.
     bool mayCross(const Coord& origin, float isovalue, const PageVector<std::uint8_t>& sides)
     {
         int seen = -1;
-        for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
-            for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) {
+        for (int bx = 0; bx <= 1; ++bx)
+            for (int by = 0; by <= 1; ++by)
+                for (int bz = 0; bz <= 1; ++bz) {
                     const Coord o = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
                     const std::int32_t b = mBlockIndex.getValue(o >> 3);
                     const int side = b >= 0 ? sides[std::size_t(b)] : regionSide(o, isovalue);
@@ -258,19 +259,25 @@ public:
     bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
     {
         gather(origin, isovalue);
-        return classify(origin, cellBox);
+        return classify(origin, cellBox, std::max(mLo, -1));
     }
 
-    /// As gatherAndClassify without the values (the count pass reads none): the inside and
-    /// active bits come straight from the leaves. Needs the window [-1, 9)^3 (halo 1).
+    /// For the count pass, which reads no values: the active bits of the window [-1, 9)^3 (halo
+    /// 1), from the leaves' masks alone, and the inside bits of [0, 9)^3, from the block and its
+    /// + neighbours. That is all an owned edge's vertex and a cell [0, 8)^3 depend on (an edge
+    /// that crosses straddles in each of its four cells, so those at -1 need only be meshed):
+    /// the - neighbours' values are never read. Returns false when no cell is meshed.
     bool gatherBitsAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
     {
         clearRows();
         for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
             for (int by = firstBlock(); by <= lastBlock(); ++by)
-                for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
-                    gatherNeighbour<false>(origin, bx, by, bz, isovalue);
-        return classify(origin, cellBox);
+                for (int bz = firstBlock(); bz <= lastBlock(); ++bz) {
+                    if (bx < 0 || by < 0 || bz < 0) gatherNeighbour<Gather::ActiveBits>(origin, bx, by, bz, isovalue);
+                    else gatherNeighbour<Gather::InsideBits>(origin, bx, by, bz, isovalue);
+                }
+        classify(origin, cellBox, 0);
+        return mAnyMeshed;
     }
 
     /// Copies values and active states of [lo, lo + width)^3 around @a origin, and the inside
@@ -281,7 +288,7 @@ public:
         for (int bx = firstBlock(); bx <= lastBlock(); ++bx)
             for (int by = firstBlock(); by <= lastBlock(); ++by)
                 for (int bz = firstBlock(); bz <= lastBlock(); ++bz)
-                    gatherNeighbour<true>(origin, bx, by, bz, isovalue);
+                    gatherNeighbour<Gather::Values>(origin, bx, by, bz, isovalue);
         // Cells read the inside bits of voxels [-1, 9)^3 only; the rest is stencil.
         for (int x = std::max(mLo, -1); x < std::min(mLo + mWidth, kBlockDim + 1); ++x)
             for (int y = std::max(mLo, -1); y < std::min(mLo + mWidth, kBlockDim + 1); ++y) {
@@ -302,6 +309,11 @@ public:
 
     /// Bits z + 1 of the candidate cells (x, y, -1..7), for x, y in [-1, 8).
     std::uint32_t cellRow(int x, int y) const { return mCellRows[(x + 1) * 9 + (y + 1)]; }
+    /// Bits z + 1 of the meshed cells (x, y, -1..7), for x, y in [-1, 8): cells with an active
+    /// corner, inside the cell box; set by gatherBitsAndClassify.
+    std::uint32_t meshedRow(int x, int y) const { return mMeshedRows[(x + 1) * 9 + (y + 1)]; }
+    /// Bits z of the inside voxels (x, y, 0..8), for x, y in [0, 9).
+    std::uint32_t insideFromZero(int x, int y) const { return insideRow(x, y) >> -mLo; }
 
     /// The marching-cubes case of cell (x, y, z), from the inside bit rows.
     int cubeCase(int x, int y, int z) const
@@ -325,9 +337,13 @@ private:
         std::fill(mActiveRows.begin(), mActiveRows.end(), 0u);
     }
 
-    /// The active bits (and with kValues the values, else the inside bits) of the part of the
-    /// window in neighbour block (bx, by, bz).
-    template <bool kValues>
+    /// What gatherNeighbour copies besides the active bits: the values (their inside bits are
+    /// taken later, for the cells' voxels only), the inside bits alone, or nothing.
+    enum class Gather { Values, InsideBits, ActiveBits };
+
+    /// The active bits, and what @a kWhat names, of the part of the window in neighbour block
+    /// (bx, by, bz).
+    template <Gather kWhat>
     void gatherNeighbour(const Coord& origin, int bx, int by, int bz, float isovalue)
     {
         // Locals, not members, in the loops: stores to the uint32 rows could alias the ints.
@@ -343,14 +359,15 @@ private:
         std::uint32_t* insideRows = mInsideRows.data();
         const Coord nOrigin = origin.offsetBy(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
         if (const LeafT* leaf = mAccessor.probeConstLeaf(nOrigin)) {
-            const float* buffer = leaf->buffer().data();
+            const float* buffer = kWhat == Gather::ActiveBits ? nullptr : leaf->buffer().data();
             const auto& mask = leaf->getValueMask();
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int src = voxelOffset(x - bx * kBlockDim, y - by * kBlockDim, z0 - bz * kBlockDim);
                     const int row = (x - lo) * width + (y - lo);
-                    if constexpr (kValues) copyRow(values + row * width + zShift, buffer + src, zCount);
-                    else insideRows[row] |= leafRowInside(buffer + src, zCount, isovalue) << zShift;
+                    if constexpr (kWhat == Gather::Values) copyRow(values + row * width + zShift, buffer + src, zCount);
+                    if constexpr (kWhat == Gather::InsideBits)
+                        insideRows[row] |= leafRowInside(buffer + src, zCount, isovalue) << zShift;
                     // Mask word x holds the active bits of rows y = 0..7, z = 0..7 in bits 8y + z.
                     const auto word = mask.template getWord<std::uint64_t>(Index(src >> 6));
                     activeRows[row] |= (std::uint32_t(word >> (src & 63)) & zRun) << zShift;
@@ -363,19 +380,25 @@ private:
             for (int x = x0; x < x1; ++x)
                 for (int y = y0; y < y1; ++y) {
                     const int row = (x - lo) * width + (y - lo);
-                    if constexpr (kValues) std::fill_n(values + row * width + zShift, zCount, tileValue);
-                    else insideRows[row] |= inside;
+                    if constexpr (kWhat == Gather::Values) std::fill_n(values + row * width + zShift, zCount, tileValue);
+                    if constexpr (kWhat == Gather::InsideBits) insideRows[row] |= inside;
                     activeRows[row] |= active;
                 }
         }
     }
 
-    bool classify(const Coord& origin, const std::optional<CoordBBox>& cellBox)
+    /// Meshed cells (an active corner; minimum corner inside @a cellBox if given) and, among
+    /// them, candidates (corners straddling k), of the cells with minimum corner in [from, 8)^3,
+    /// from = max(lo, -1); candidates only from @a insideFrom on (where the inside bits are).
+    /// Returns whether any cell is a candidate.
+    bool classify(const Coord& origin, const std::optional<CoordBBox>& cellBox, int insideFrom)
     {
-        // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1; shift so cell z = -1 is bit 0.
+        // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1: bit z + 1 is cell z.
         const int shift = -1 - mLo;
+        auto align = [shift](std::uint32_t bits) { return shift >= 0 ? bits >> shift : bits << -shift; };
+        const int from = std::max(mLo, -1);
         std::uint32_t cellMask = (1u << (kBlockDim + 1)) - 1u;
-        int xLo = -1, xHi = kBlockDim - 1, yLo = -1, yHi = kBlockDim - 1;
+        int xLo = from, xHi = kBlockDim - 1, yLo = from, yHi = kBlockDim - 1;
         if (cellBox) {
             const Coord lo = cellBox->min() - origin, hi = cellBox->max() - origin;
             xLo = std::max(xLo, lo[0]), xHi = std::min(xHi, hi[0]);
@@ -383,25 +406,27 @@ private:
             const int zLo = std::max(-1, lo[2]), zHi = std::min(kBlockDim - 1, hi[2]);
             cellMask = zLo > zHi ? 0u : (((2u << (zHi + 1)) - 1u) & ~((1u << (zLo + 1)) - 1u));
         }
-        bool any = false;
-        for (int x = -1; x < kBlockDim; ++x)
-            for (int y = -1; y < kBlockDim; ++y) {
-                std::uint32_t cells = 0;
-                if (x >= xLo && x <= xHi && y >= yLo && y <= yHi) {
-                    const std::uint32_t in4 = insideRow(x, y) & insideRow(x + 1, y) &
-                                              insideRow(x, y + 1) & insideRow(x + 1, y + 1);
-                    const std::uint32_t any4 = insideRow(x, y) | insideRow(x + 1, y) |
-                                               insideRow(x, y + 1) | insideRow(x + 1, y + 1);
-                    const std::uint32_t act4 = activeRow(x, y) | activeRow(x + 1, y) |
-                                               activeRow(x, y + 1) | activeRow(x + 1, y + 1);
-                    const std::uint32_t allIn = (in4 & (in4 >> 1)) >> shift;
-                    const std::uint32_t anyIn = (any4 | (any4 >> 1)) >> shift;
-                    const std::uint32_t active = (act4 | (act4 >> 1)) >> shift;
-                    cells = anyIn & ~allIn & active & cellMask;
-                }
+        const std::uint32_t candidateMask = cellMask & ~((1u << (insideFrom + 1)) - 1u);
+        mCellRows.fill(0u);
+        mMeshedRows.fill(0u);
+        bool any = false, anyMeshed = false;
+        for (int x = xLo; x <= xHi; ++x)
+            for (int y = yLo; y <= yHi; ++y) {
+                const std::uint32_t act4 = activeRow(x, y) | activeRow(x + 1, y) |
+                                           activeRow(x, y + 1) | activeRow(x + 1, y + 1);
+                const std::uint32_t meshed = align(act4 | (act4 >> 1)) & cellMask;
+                mMeshedRows[(x + 1) * 9 + (y + 1)] = meshed;
+                anyMeshed |= meshed != 0;
+                if (x < insideFrom || y < insideFrom) continue;
+                const std::uint32_t in4 = insideRow(x, y) & insideRow(x + 1, y) &
+                                          insideRow(x, y + 1) & insideRow(x + 1, y + 1);
+                const std::uint32_t any4 = insideRow(x, y) | insideRow(x + 1, y) |
+                                           insideRow(x, y + 1) | insideRow(x + 1, y + 1);
+                const std::uint32_t cells = align(any4 | (any4 >> 1)) & ~align(in4 & (in4 >> 1)) & meshed & candidateMask;
                 mCellRows[(x + 1) * 9 + (y + 1)] = cells;
                 any |= cells != 0;
             }
+        mAnyMeshed = anyMeshed;
         return any;
     }
 
@@ -413,7 +438,9 @@ private:
     std::vector<float> mValues;
     std::vector<std::uint32_t> mInsideRows; // per (x, y): bit z - lo set when value >= isovalue
     std::vector<std::uint32_t> mActiveRows; // per (x, y): bit z - lo set when active
-    std::array<std::uint32_t, 81> mCellRows{}; // per cell row (x, y) in [-1, 8)^2: candidates
+    std::array<std::uint32_t, 81> mCellRows{};   // per cell row (x, y) in [-1, 8)^2: candidates
+    std::array<std::uint32_t, 81> mMeshedRows{}; // the same: meshed cells
+    bool mAnyMeshed = false;
 };
 
 } // namespace mc_internal

@@ -251,8 +251,9 @@ void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
         VertexColumns::allocate(mesh, vertices, triangles, provenance, settings, settings.threaded);
     const VertexContext context{isovalue, toWorld, grid.transform().voxelSize(), bounds,
         settings.stencil, settings.method, settings.uncertainty};
+    const FillWindow window = fillWindow(settings);
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(
-        std::cref(grid.tree()), std::cref(blocks.index), settings.uncertainty ? 3 : 1);
+        std::cref(grid.tree()), std::cref(blocks.index), window.lo, window.width);
     std::atomic<std::size_t> done{0};
     forEachBlock(n, settings.threaded, interrupter, done, n, [&](std::size_t i) {
         if (d.counts[i].empty()) return;

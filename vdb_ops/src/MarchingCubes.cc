@@ -90,12 +90,12 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     clock.lap(mStageTimes.blocks);
     throwIfInterrupted(interrupter);
     const std::size_t blockCount = blocks.origins.size();
-    // Classifying cells reads one voxel beyond the block; the stencils f_{i-2..i+3} of the
-    // edges from voxels 0..7 read voxels -2..10 (SPEC §2).
+    // Counting reads one voxel beyond the block (gatherBitsAndClassify); the fill, fillWindow.
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> scratch(
         std::cref(grid.tree()), std::cref(blocks.index), 1);
+    const FillWindow window = fillWindow(settings);
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(std::cref(grid.tree()),
-        std::cref(blocks.index), settings.uncertainty ? -2 : -1, settings.uncertainty ? 13 : 10);
+        std::cref(blocks.index), window.lo, window.width);
     std::atomic<std::size_t> done{0};
     const std::size_t work = 3 * blockCount;
 

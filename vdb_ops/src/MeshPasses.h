@@ -98,30 +98,70 @@ void forEachCandidateCell(const ScratchT& s, int from, Body&& body)
         }
 }
 
-/// Count pass for one block: which owned edges carry a vertex, and the block's triangle count.
-/// An edge carries a vertex when it crosses and at least one of its four cells is meshed.
+/// Bit i of @a bits moved to bit 3 i, for 8 bits: a row of one axis's edges into EdgeMask order.
+constexpr std::uint32_t spreadToThirds(std::uint32_t bits)
+{
+    std::uint32_t out = 0;
+    for (int i = 0; i < 8; ++i) out |= ((bits >> i) & 1u) << (3 * i);
+    return out;
+}
+inline constexpr auto kSpreadToThirds = [] {
+    std::array<std::uint32_t, 256> table{};
+    for (std::uint32_t b = 0; b < 256; ++b) table[b] = spreadToThirds(b);
+    return table;
+}();
+
+/// Count pass for one block (after gatherBitsAndClassify): which owned edges carry a vertex, and
+/// the block's triangle count. An edge carries a vertex when it crosses and at least one of its
+/// four cells is meshed (every cell of a crossing edge straddles k, so it is a candidate then).
+/// One row of eight voxels at a time: the crossings along each axis, and the meshed cells
+/// around each edge, as bit rows.
 template <typename TreeT>
 void countBlock(const BlockScratch<TreeT>& s, EdgeMask& mask, BlockCounts& counts)
 {
     mask = EdgeMask{};
     counts = BlockCounts{};
-    forEachCandidateCell(s, -1, [&](int x, int y, int z, int cubeCase) {
-        if (x >= 0 && y >= 0 && z >= 0) counts.triangles += kMcCases.triangleCount[cubeCase];
-        for (unsigned crossing = kMcCases.crossingEdges[cubeCase]; crossing; crossing &= crossing - 1) {
-            const McEdge& edge = kMcEdges[__builtin_ctz(crossing)];
-            const int vx = x + edge.dx, vy = y + edge.dy, vz = z + edge.dz;
-            if (vx < 0 || vy < 0 || vz < 0 || vx >= kBlockDim || vy >= kBlockDim || vz >= kBlockDim)
-                continue; // owned by another block
-            const int bit = 3 * voxelOffset(vx, vy, vz) + edge.axis;
-            mask.bits[bit >> 6] |= std::uint64_t(1) << (bit & 63);
+    forEachCandidateCell(s, 0, [&](int, int, int, int cubeCase) { counts.triangles += kMcCases.triangleCount[cubeCase]; });
+    constexpr std::uint32_t kRow = (1u << kBlockDim) - 1u;
+    for (int x = 0; x < kBlockDim; ++x)
+        for (int y = 0; y < kBlockDim; ++y) {
+            // Bit z: voxels z and z + 1 (or the + neighbour along x, y) on either side of k.
+            const std::uint32_t in = s.insideFromZero(x, y);
+            const std::uint32_t crossX = (in ^ s.insideFromZero(x + 1, y)) & kRow;
+            const std::uint32_t crossY = (in ^ s.insideFromZero(x, y + 1)) & kRow;
+            const std::uint32_t crossZ = (in ^ (in >> 1)) & kRow;
+            // Meshed rows: bit z + 1 is cell z. An x edge's cells are (x, y - 1..y, z - 1..z), a
+            // y edge's (x - 1..x, y, z - 1..z), a z edge's (x - 1..x, y - 1..y, z).
+            const std::uint32_t m = s.meshedRow(x, y), mBelowY = s.meshedRow(x, y - 1);
+            const std::uint32_t mBelowX = s.meshedRow(x - 1, y), mBelowXY = s.meshedRow(x - 1, y - 1);
+            const std::uint32_t aroundX = m | mBelowY, aroundY = m | mBelowX;
+            const std::uint32_t vx = crossX & (aroundX | (aroundX >> 1));
+            const std::uint32_t vy = crossY & (aroundY | (aroundY >> 1));
+            const std::uint32_t vz = crossZ & ((m | mBelowY | mBelowX | mBelowXY) >> 1);
+            if ((vx | vy | vz) == 0) continue;
+            // Bits 3 * voxelOffset(x, y, z) + axis: 24 bits from 3 * voxelOffset(x, y, 0) on.
+            const std::uint64_t bits = kSpreadToThirds[vx] | kSpreadToThirds[vy] << 1 | kSpreadToThirds[vz] << 2;
+            const int at = 3 * voxelOffset(x, y, 0), word = at >> 6, shift = at & 63;
+            mask.bits[word] |= bits << shift;
+            if (shift > 64 - 24) mask.bits[word + 1] |= bits >> (64 - shift);
         }
-    });
     std::uint32_t total = 0;
     for (int w = 0; w < kWords; ++w) {
         mask.rankBase[w] = std::uint16_t(total);
         total += std::uint32_t(__builtin_popcountll(mask.bits[w]));
     }
     counts.vertices = total;
+}
+
+/// The fill pass's window [lo, lo + width)^3 around a block: the linear crossings and the
+/// cells [0, 8)^3 read voxels [0, 9); the stencils f_{i-2..i+3} of the edges from voxels 0..7
+/// read voxels -2..10 (SPEC §2).
+struct FillWindow {
+    int lo, width;
+};
+inline FillWindow fillWindow(const MeshSettings& settings)
+{
+    return settings.uncertainty ? FillWindow{-2, 13} : FillWindow{0, kBlockDim + 1};
 }
 
 /// Writes the block's vertices at @a offset, in the order of the bits of its edge mask.
