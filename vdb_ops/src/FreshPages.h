@@ -8,23 +8,28 @@
 // page a buffer that pread fills starts (SlabBuffer).
 #pragma once
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 #include <tbb/task_arena.h>
 
 #include <sys/mman.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <new>
 #include <sstream>
 #include <string>
 #include <string_view>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace isouq::mc_internal {
@@ -71,46 +76,112 @@ struct PageRange {
     std::size_t bytes = 0;
 };
 
-/// Faults in the pages of @a ranges, which must be this process's own writable memory. A range
-/// of 8 MiB or more first has its whole 2 MiB pages advised MADV_HUGEPAGE, unless malloc advises
-/// its heap itself (THP "madvise", Debian's default, or "always"). Pages another allocation
-/// shares are only faulted in, never written. A kernel without MADV_POPULATE_WRITE (before
-/// 5.14) faults on first write.
-inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
+/// A stretch of whole pages: [first, second).
+using PagePiece = std::pair<std::uintptr_t, std::uintptr_t>;
+
+/// Appends to @a pieces the pages of @a range (none under kPopulateFrom) in pieces of at most
+/// 2 MiB on 2 MiB boundaries. A range of 8 MiB or more first has its whole 2 MiB pages advised
+/// MADV_HUGEPAGE, unless malloc advises its heap itself (THP "madvise", Debian's default, or
+/// "always"). Returns whether the range is in huge pages, so that a first write faults in 2 MiB.
+inline bool piecesOf(const PageRange& range, std::vector<PagePiece>& pieces)
+{
+    if (range.bytes < kPopulateFrom) return false;
+    const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
+    const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(range.data) & ~(page - 1);
+    const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(range.data) + range.bytes, page);
+    const bool huge = range.bytes >= kHugeFrom;
+    // Malloc's heap in huge pages is advised already; advising it again takes the address
+    // space's write lock, which waits for the other threads' faults in progress (8-15 ms a
+    // call on the 1 GiB raw scan, while a core idles: bench/journal/2026-12-04.md, 23:43).
+#if defined(MADV_HUGEPAGE)
+    if (huge && !mallocHasHugePages()) {
+        const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
+        if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
+    }
+#endif
+    for (std::uintptr_t from = lo, to; from < hi; from = to) {
+        to = std::min(hi, (from / kHugePage + 1) * kHugePage);
+        pieces.emplace_back(from, to);
+    }
+    return huge;
+}
+
+/// Faults in @a piece, which writes nothing. A kernel without MADV_POPULATE_WRITE (before
+/// 5.14) faults on first write instead.
+inline void populatePiece(const PagePiece& piece)
 {
 #if defined(MADV_POPULATE_WRITE)
-    const std::uintptr_t page = std::uintptr_t(::sysconf(_SC_PAGESIZE));
-    // Pieces of at most 2 MiB on 2 MiB boundaries, of every range in one loop, so that the
-    // threads share the zeroing however the ranges' sizes differ.
-    std::vector<std::pair<std::uintptr_t, std::uintptr_t>> pieces;
-    for (const PageRange& range : ranges) {
-        if (range.bytes < kPopulateFrom) continue;
-        const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(range.data) & ~(page - 1);
-        const std::uintptr_t hi = roundUp(reinterpret_cast<std::uintptr_t>(range.data) + range.bytes, page);
-        // Malloc's heap in huge pages is advised already; advising it again takes the address
-        // space's write lock, which waits for the other threads' faults in progress (8-15 ms a
-        // call on the 1 GiB raw scan, while a core idles: bench/journal/2026-12-04.md, 23:43).
-        if (range.bytes >= kHugeFrom && !mallocHasHugePages()) {
-            const std::uintptr_t hugeLo = roundUp(lo, kHugePage), hugeHi = hi & ~(kHugePage - 1);
-            if (hugeHi > hugeLo) ::madvise(reinterpret_cast<void*>(hugeLo), hugeHi - hugeLo, MADV_HUGEPAGE);
-        }
-        for (std::uintptr_t from = lo, to; from < hi; from = to) {
-            to = std::min(hi, (from / kHugePage + 1) * kHugePage);
-            pieces.emplace_back(from, to);
-        }
-    }
-    auto populate = [&](std::size_t i) {
-        ::madvise(reinterpret_cast<void*>(pieces[i].first), pieces[i].second - pieces[i].first, MADV_POPULATE_WRITE);
-    };
+    ::madvise(reinterpret_cast<void*>(piece.first), piece.second - piece.first, MADV_POPULATE_WRITE);
+#else
+    (void)piece;
+#endif
+}
+
+/// Faults in the pages of @a ranges, which must be this process's own writable memory (piecesOf).
+/// Pages another allocation shares are only faulted in, never written.
+inline void populatePages(const std::vector<PageRange>& ranges, bool threaded)
+{
+    // The pieces of every range in one loop, so that the threads share the zeroing however
+    // the ranges' sizes differ.
+    std::vector<PagePiece> pieces;
+    for (const PageRange& range : ranges) piecesOf(range, pieces);
+    auto populate = [&](std::size_t i) { populatePiece(pieces[i]); };
     // Isolated: a caller's task (one output column of several) waits for its own pieces only and
     // does not take up a sibling task meanwhile, which ran the columns one after the other (at
     // N = 1024, 15 ms instead of 8: bench/journal/2026-12-04.md, 15:02).
     if (threaded && pieces.size() > 1)
         tbb::this_task_arena::isolate([&] { tbb::parallel_for(std::size_t(0), pieces.size(), populate); });
     else for (std::size_t i = 0; i < pieces.size(); ++i) populate(i);
-#else
-    (void)ranges, (void)threaded;
-#endif
+}
+
+/// Runs @a resize(i) for each column i whose new storage is @a fresh[i] (reserveStorage: not yet
+/// faulted in), a task each, largest first; resize() writes every element (std::vector's value
+/// initialisation), column by column. A column in huge pages is faulted in by its resize, front
+/// to back, while the other threads fault it in from the back (as do the resize tasks once
+/// done); a smaller column is faulted in by its task first (MADV_POPULATE_WRITE costs a tenth
+/// of a first write's fault per 4 KiB page). Each page is thus zeroed once by the kernel and
+/// once by resize, and the threads share both however the columns' sizes differ (populating
+/// every column first, then resizing a task per column, zeroed in two rounds and left a thread
+/// idle while the largest column, the triangles at N = 1024, was written: issue 15).
+template <typename Resize>
+void resizeFaultingIn(const std::vector<PageRange>& fresh, Resize&& resize, bool threaded)
+{
+    const std::size_t n = fresh.size();
+    std::vector<std::vector<PagePiece>> pieces(n);
+    std::vector<bool> huge(n);
+    for (std::size_t i = 0; i < n; ++i) huge[i] = piecesOf(fresh[i], pieces[i]);
+    std::vector<std::size_t> order(n);
+    for (std::size_t i = 0; i < n; ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return fresh[a].bytes > fresh[b].bytes; });
+    const std::unique_ptr<std::atomic<bool>[]> done(new std::atomic<bool>[n]);
+    const std::unique_ptr<std::atomic<std::size_t>[]> fromBack(new std::atomic<std::size_t>[n]);
+    for (std::size_t i = 0; i < n; ++i) done[i] = false, fromBack[i] = 0;
+    auto help = [&] {
+        for (const std::size_t c : order)
+            while (huge[c] && !done[c].load(std::memory_order_relaxed)) {
+                const std::size_t k = fromBack[c].fetch_add(1, std::memory_order_relaxed);
+                if (k >= pieces[c].size()) break;
+                populatePiece(pieces[c][pieces[c].size() - 1 - k]);
+            }
+    };
+    auto task = [&](std::size_t i) { // i < n: column order[i]'s resize; then helpers
+        if (i >= n) return help();
+        const std::size_t c = order[i];
+        if (!huge[c]) for (const PagePiece& piece : pieces[c]) populatePiece(piece);
+        resize(c);
+        done[c].store(true, std::memory_order_relaxed);
+        help();
+    };
+    const std::size_t helpers = threaded ? std::size_t(std::max(tbb::this_task_arena::max_concurrency(), 1)) - 1 : 0;
+    if (threaded && n + helpers > 1) {
+        tbb::this_task_arena::isolate([&] {
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n + helpers, 1), [&](const tbb::blocked_range<std::size_t>& r) {
+                for (std::size_t i = r.begin(); i < r.end(); ++i) task(i);
+            }, tbb::simple_partitioner());
+        });
+    } else {
+        for (std::size_t i = 0; i < n; ++i) task(i);
+    }
 }
 
 /// Whether this build runs under a sanitizer, which should see every array as heap memory.

@@ -68,9 +68,9 @@ struct VertexColumns {
 
     /// Sizes positions, triangles and the columns this pass writes, drops the columns it does
     /// not write (a reused mesh's leftovers), and points at them. The columns are sized side by
-    /// side, a task each (resize()'s zero fill is serial within one column), once their pages are
-    /// in. The pointers are to the columns' storage, which moving a column (the table growing or
-    /// shrinking) does not move.
+    /// side, a task each (resize()'s zero fill is serial within one column), their pages faulted
+    /// in by all threads (resizeFaultingIn). The pointers are to the columns' storage, which
+    /// moving a column (the table growing or shrinking) does not move.
     static VertexColumns allocate(Mesh& mesh, std::size_t vertices, std::size_t triangles, bool provenance,
         const MeshSettings& settings, bool threaded)
     {
@@ -93,14 +93,11 @@ struct VertexColumns {
         };
         const std::size_t count = 2 + a.columns().size();
         // Storage first, one column after the other (malloc's lock, and the address space's for
-        // new mappings), then every column's pages in one parallel loop (populatePages).
+        // new mappings), then the columns' sizes and pages on all threads (resizeFaultingIn).
         std::vector<PageRange> fresh;
         for (std::size_t i = 0; i < count; ++i)
             fresh.push_back(each(i, [](auto& v, std::size_t n) { return reserveStorage(v, n); }));
-        populatePages(fresh, threaded);
-        auto size = [&](std::size_t i) { each(i, [](auto& v, std::size_t n) { v.resize(n); }); };
-        if (threaded) tbb::parallel_for(std::size_t(0), count, size);
-        else for (std::size_t i = 0; i < count; ++i) size(i);
+        resizeFaultingIn(fresh, [&](std::size_t i) { each(i, [](auto& v, std::size_t n) { v.resize(n); }); }, threaded);
 
         VertexColumns c;
         c.positions = mesh.positions.data();
