@@ -83,19 +83,16 @@ struct EdgeMasks {
 };
 
 
-/// Calls @a body(x, y, z, cubeCase) for each candidate cell with x, y, z >= @a from (-1 or 0).
+/// Calls @a body(x, y, z, cubeCase) for each candidate cell the block owns (x, y, z in [0, 8)).
 template <typename ScratchT, typename Body>
-void forEachCandidateCell(const ScratchT& s, int from, Body&& body)
+void forEachOwnedCandidateCell(const ScratchT& s, Body&& body)
 {
-    for (int x = from; x < kBlockDim; ++x)
-        for (int y = from; y < kBlockDim; ++y) {
-            std::uint32_t cells = s.cellRow(x, y);
-            if (from == 0) cells &= ~1u;
-            for (; cells; cells &= cells - 1) {
+    for (int x = 0; x < kBlockDim; ++x)
+        for (int y = 0; y < kBlockDim; ++y)
+            for (std::uint32_t cells = s.cellRow(x, y) & ~1u; cells; cells &= cells - 1) { // bit z + 1: cell z
                 const int z = __builtin_ctz(cells) - 1;
                 body(x, y, z, s.cubeCase(x, y, z));
             }
-        }
 }
 
 /// Bit i of @a bits moved to bit 3 i, for 8 bits: a row of one axis's edges into EdgeMask order.
@@ -121,7 +118,7 @@ void countBlock(const BlockScratch<TreeT>& s, EdgeMask& mask, BlockCounts& count
 {
     mask = EdgeMask{};
     counts = BlockCounts{};
-    forEachCandidateCell(s, 0, [&](int, int, int, int cubeCase) { counts.triangles += kMcCases.triangleCount[cubeCase]; });
+    forEachOwnedCandidateCell(s, [&](int, int, int, int cubeCase) { counts.triangles += kMcCases.triangleCount[cubeCase]; });
     constexpr std::uint32_t kRow = (1u << kBlockDim) - 1u;
     for (int x = 0; x < kBlockDim; ++x)
         for (int y = 0; y < kBlockDim; ++y) {
@@ -196,7 +193,7 @@ template <typename TreeT>
 void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours)[2][2][2],
     const EdgeMasks& masks, const PageVector<std::uint64_t>& vertexOffsets, bool flip, openvdb::Vec3I* out)
 {
-    forEachCandidateCell(s, 0, [&](int x, int y, int z, int cubeCase) {
+    forEachOwnedCandidateCell(s, [&](int x, int y, int z, int cubeCase) {
         const auto& edges = kMcCases.triangleEdges[cubeCase];
         for (int t = 0; t < kMcCases.triangleCount[cubeCase]; ++t) {
             const std::uint32_t a = vertexOf(x, y, z, edges[3 * t], neighbours, masks, vertexOffsets);
