@@ -259,7 +259,7 @@ public:
     bool gatherAndClassify(const Coord& origin, float isovalue, const std::optional<CoordBBox>& cellBox)
     {
         gather(origin, isovalue);
-        return classify(origin, cellBox, std::max(mLo, -1));
+        return classify(origin, cellBox, std::max(mLo, -1)).anyCandidate;
     }
 
     /// For the count pass, which reads no values: the active bits of the window [-1, 9)^3 (halo
@@ -276,8 +276,7 @@ public:
                     if (bx < 0 || by < 0 || bz < 0) gatherNeighbour<Gather::ActiveBits>(origin, bx, by, bz, isovalue);
                     else gatherNeighbour<Gather::InsideBits>(origin, bx, by, bz, isovalue);
                 }
-        classify(origin, cellBox, 0);
-        return mAnyMeshed;
+        return classify(origin, cellBox, 0).anyMeshed;
     }
 
     /// Copies values and active states of [lo, lo + width)^3 around @a origin, and the inside
@@ -387,11 +386,14 @@ private:
         }
     }
 
+    /// Whether classify found any candidate cell, and any meshed cell.
+    struct Classified {
+        bool anyCandidate = false, anyMeshed = false;
+    };
     /// Meshed cells (an active corner; minimum corner inside @a cellBox if given) and, among
     /// them, candidates (corners straddling k), of the cells with minimum corner in [from, 8)^3,
     /// from = max(lo, -1); candidates only from @a insideFrom on (where the inside bits are).
-    /// Returns whether any cell is a candidate.
-    bool classify(const Coord& origin, const std::optional<CoordBBox>& cellBox, int insideFrom)
+    Classified classify(const Coord& origin, const std::optional<CoordBBox>& cellBox, int insideFrom)
     {
         // Cells (x, y, -1..7) use voxel bits z - lo and z - lo + 1: bit z + 1 is cell z.
         const int shift = -1 - mLo;
@@ -409,14 +411,14 @@ private:
         const std::uint32_t candidateMask = cellMask & ~((1u << (insideFrom + 1)) - 1u);
         mCellRows.fill(0u);
         mMeshedRows.fill(0u);
-        bool any = false, anyMeshed = false;
+        Classified found;
         for (int x = xLo; x <= xHi; ++x)
             for (int y = yLo; y <= yHi; ++y) {
                 const std::uint32_t act4 = activeRow(x, y) | activeRow(x + 1, y) |
                                            activeRow(x, y + 1) | activeRow(x + 1, y + 1);
                 const std::uint32_t meshed = align(act4 | (act4 >> 1)) & cellMask;
                 mMeshedRows[(x + 1) * 9 + (y + 1)] = meshed;
-                anyMeshed |= meshed != 0;
+                found.anyMeshed |= meshed != 0;
                 if (x < insideFrom || y < insideFrom) continue;
                 const std::uint32_t in4 = insideRow(x, y) & insideRow(x + 1, y) &
                                           insideRow(x, y + 1) & insideRow(x + 1, y + 1);
@@ -424,10 +426,9 @@ private:
                                            insideRow(x, y + 1) | insideRow(x + 1, y + 1);
                 const std::uint32_t cells = align(any4 | (any4 >> 1)) & ~align(in4 & (in4 >> 1)) & meshed & candidateMask;
                 mCellRows[(x + 1) * 9 + (y + 1)] = cells;
-                any |= cells != 0;
+                found.anyCandidate |= cells != 0;
             }
-        mAnyMeshed = anyMeshed;
-        return any;
+        return found;
     }
 
     // Not registered with the trees (a registration per scratch and call is a locked hash-map
@@ -440,7 +441,6 @@ private:
     std::vector<std::uint32_t> mActiveRows; // per (x, y): bit z - lo set when active
     std::array<std::uint32_t, 81> mCellRows{};   // per cell row (x, y) in [-1, 8)^2: candidates
     std::array<std::uint32_t, 81> mMeshedRows{}; // the same: meshed cells
-    bool mAnyMeshed = false;
 };
 
 } // namespace mc_internal
