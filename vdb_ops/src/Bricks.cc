@@ -139,13 +139,7 @@ void BrickMesher::count(openvdb::util::NullInterrupter* interrupter)
     FoundMasks& found = d.found;
     found.clear();
     forEachBlock(n, settings.threaded, interrupter, done, 3 * n, [&](std::size_t i) {
-        BlockScratch<TreeT>& s = scratch.local();
-        const Coord& origin = blocks.origins[d.begin + i];
-        if (!s.mayCross(origin, isovalue, sides)) return;
-        if (!s.gatherBitsAndClassify(origin, isovalue, cellBox)) return;
-        EdgeMask mask;
-        countBlock(s, mask, d.counts[i]);
-        if (!d.counts[i].empty()) found.local().push({std::int32_t(d.begin + i), mask});
+        countPassBlock(scratch.local(), blocks, d.begin + i, isovalue, cellBox, sides, d.counts[i], found);
     });
 
     assignFresh(d.vertexOffsets, blocks.origins.size() + 1, std::uint64_t(0), settings.threaded);
@@ -255,20 +249,11 @@ void BrickMesher::fill(Mesh& mesh, openvdb::util::NullInterrupter* interrupter)
     tbb::enumerable_thread_specific<BlockScratch<TreeT>> stencilScratch(
         std::cref(grid.tree()), std::cref(blocks.index), window.lo, window.width);
     std::atomic<std::size_t> done{0};
+    const FillTarget target{d.masks, d.vertexOffsets, d.firstVertex, context, columns, flip};
     forEachBlock(n, settings.threaded, interrupter, done, n, [&](std::size_t i) {
         if (d.counts[i].empty()) return;
-        const std::size_t b = d.begin + i;
-        const Coord& origin = blocks.origins[b];
-        BlockScratch<TreeT>& s = stencilScratch.local();
-        s.gatherAndClassify(origin, isovalue, cellBox);
-        fillVertices(s, origin, d.masks.of(std::int32_t(b)), d.vertexOffsets[b] - d.firstVertex, context, columns);
-        if (d.counts[i].triangles == 0) return;
-        std::int32_t neighbours[2][2][2];
-        for (int dx = 0; dx < 2; ++dx)
-            for (int dy = 0; dy < 2; ++dy)
-                for (int dz = 0; dz < 2; ++dz)
-                    neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
-        fillTriangles(s, neighbours, d.masks, d.vertexOffsets, flip, mesh.triangles.data() + d.triangleOffsets[i]);
+        fillPassBlock(stencilScratch.local(), blocks, d.begin + i, d.counts[i], cellBox, target,
+            mesh.triangles.data() + d.triangleOffsets[i]);
     });
 }
 

@@ -112,12 +112,7 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
     assignFresh(counts, blockCount, BlockCounts{}, threaded);
     FoundMasks found;
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
-        BlockScratch<TreeT>& s = scratch.local();
-        if (!s.mayCross(blocks.origins[b], isovalue, sides)) return;
-        if (!s.gatherBitsAndClassify(blocks.origins[b], isovalue, cellBox)) return;
-        EdgeMask mask;
-        countBlock(s, mask, counts[b]);
-        if (!counts[b].empty()) found.local().push({std::int32_t(b), mask});
+        countPassBlock(scratch.local(), blocks, b, isovalue, cellBox, sides, counts[b], found);
     });
     clock.lap(mStageTimes.count);
 
@@ -173,19 +168,11 @@ void IsosurfaceMesher::operator()(const GridT& grid, Mesh& mesh, openvdb::util::
         settings.stencil, settings.method, settings.uncertainty};
 
     // Fill pass.
+    const FillTarget target{masks, vertexOffsets, 0, context, columns, flip};
     forEachBlock(blockCount, threaded, interrupter, done, work, [&](std::size_t b) {
         if (counts[b].empty()) return;
-        const Coord& origin = blocks.origins[b];
-        BlockScratch<TreeT>& s = stencilScratch.local();
-        s.gatherAndClassify(origin, isovalue, cellBox);
-        fillVertices(s, origin, masks.of(std::int32_t(b)), vertexOffsets[b], context, columns);
-        if (counts[b].triangles == 0) return;
-        std::int32_t neighbours[2][2][2];
-        for (int dx = 0; dx < 2; ++dx)
-            for (int dy = 0; dy < 2; ++dy)
-                for (int dz = 0; dz < 2; ++dz)
-                    neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
-        fillTriangles(s, neighbours, masks, vertexOffsets, flip, mesh.triangles.data() + triangleOffsets[b]);
+        fillPassBlock(stencilScratch.local(), blocks, b, counts[b], cellBox, target,
+            mesh.triangles.data() + triangleOffsets[b]);
     });
     clock.lap(mStageTimes.fill);
 }

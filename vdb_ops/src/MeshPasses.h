@@ -204,6 +204,52 @@ void fillTriangles(const BlockScratch<TreeT>& s, const std::int32_t (&neighbours
     });
 }
 
+/// The count pass on block @a b, the same for the one-process mesher and a brick: its counts,
+/// and its edge mask appended to the thread's list when the block has vertices or triangles.
+/// Blocks that cannot cross (mayCross) or have no candidate cell are left at zero.
+template <typename TreeT>
+void countPassBlock(BlockScratch<TreeT>& s, const BlockSet& blocks, std::size_t b, float isovalue,
+    const std::optional<CoordBBox>& cellBox, const PageVector<std::uint8_t>& sides, BlockCounts& counts,
+    FoundMasks& found)
+{
+    const Coord& origin = blocks.origins[b];
+    if (!s.mayCross(origin, isovalue, sides)) return;
+    if (!s.gatherBitsAndClassify(origin, isovalue, cellBox)) return;
+    EdgeMask mask;
+    countBlock(s, mask, counts);
+    if (!counts.empty()) found.local().push({std::int32_t(b), mask});
+}
+
+/// Where the fill pass writes: @a vertexOffsets[b] is block b's first vertex in the whole mesh,
+/// which is row vertexOffsets[b] - firstVertex of @a columns (a brick's columns start at its
+/// first vertex; the one-process mesher's at 0).
+struct FillTarget {
+    const EdgeMasks& masks;
+    const PageVector<std::uint64_t>& vertexOffsets;
+    std::uint64_t firstVertex;
+    const VertexContext& context;
+    const VertexColumns& columns;
+    bool flip;
+};
+
+/// The fill pass on non-empty block @a b: its vertices, then its @a counts.triangles triangles
+/// at @a triangles.
+template <typename TreeT>
+void fillPassBlock(BlockScratch<TreeT>& s, const BlockSet& blocks, std::size_t b, const BlockCounts& counts,
+    const std::optional<CoordBBox>& cellBox, const FillTarget& to, openvdb::Vec3I* triangles)
+{
+    const Coord& origin = blocks.origins[b];
+    s.gatherAndClassify(origin, to.context.isovalue, cellBox);
+    fillVertices(s, origin, to.masks.of(std::int32_t(b)), to.vertexOffsets[b] - to.firstVertex, to.context,
+        to.columns);
+    if (counts.triangles == 0) return;
+    std::int32_t neighbours[2][2][2];
+    for (int dx = 0; dx < 2; ++dx)
+        for (int dy = 0; dy < 2; ++dy)
+            for (int dz = 0; dz < 2; ++dz) neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
+    fillTriangles(s, neighbours, to.masks, to.vertexOffsets, to.flip, triangles);
+}
+
 /// Whether triangles are wound the other way (Orientation; level sets face outward by default).
 template <typename GridT>
 bool flipsTriangles(const GridT& grid, const MeshSettings& settings)
