@@ -23,6 +23,7 @@
 
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <malloc.h>
 #include <sys/resource.h>
@@ -35,6 +36,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <sstream>
@@ -238,6 +240,36 @@ std::unique_ptr<tbb::global_control> limitThreads(int threads)
     if (threads <= 0) return nullptr;
     return std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
         std::size_t(threads));
+}
+
+/// The machine's own memory scaling, measured in the same run as the mesher (bench/README.md
+/// "Threads"): a streaming read of 256 MiB of resident memory by 1 thread and by all, taking
+/// turns, median of 7 each. A mesher that streams its grid and output cannot scale further than
+/// this: on a host whose other guests share the memory bus, 2 threads have read as little as
+/// 1.07x one (bench/journal/2026-12-07.md, 14:10).
+void printMemoryProbe()
+{
+    const int all = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+    std::vector<std::uint64_t> words(std::size_t(32) << 20, 1);
+    std::vector<double> seconds[2];
+    std::uint64_t sum = 0;
+    for (int r = -1; r < 7; ++r)
+        for (int t = 0; t < 2; ++t) {
+            const auto control = limitThreads(t == 0 ? 1 : all);
+            const double w0 = wallSeconds();
+            sum += tbb::parallel_reduce(tbb::blocked_range<std::size_t>(0, words.size(), std::size_t(1) << 16),
+                std::uint64_t(0),
+                [&](const tbb::blocked_range<std::size_t>& range, std::uint64_t part) {
+                    for (std::size_t i = range.begin(); i < range.end(); ++i) part += words[i];
+                    return part;
+                },
+                std::plus<std::uint64_t>());
+            if (r >= 0) seconds[t].push_back(wallSeconds() - w0);
+        }
+    const double bytes = double(words.size() * sizeof(std::uint64_t)) * double(sum > 0);
+    const double one = bytes / median(seconds[0]) * 1e-9, many = bytes / median(seconds[1]) * 1e-9;
+    std::printf("Memory in this run: a streaming read of 256 MiB, %.1f GB/s with 1 thread, %.1f GB/s with %d "
+                "(%.2fx); load %s.\n\n", one, many, all, many / one, loadAverage().c_str());
 }
 
 /// Child mode: build the grid, make one call, print the VmHWM rise in KiB.
@@ -602,12 +634,15 @@ int main(int argc, char** argv)
             return 0;
         }
         if (o.stages) {
+            printMemoryProbe();
             std::printf("Mesher stages, 1 thread against %d, interleaved. Load average at start: %s; %d repeats "
                         "(median).\n\n", int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)),
                 loadAverage().c_str(), o.repeats);
             std::printf("| case | pass | stage | 1 thread ms | all threads ms | speedup | serial fraction | load |\n");
             std::printf("|---|---|---|--:|--:|--:|--:|--:|\n");
             for (const std::string& c : o.cases) benchStages(c, o);
+            std::printf("\n");
+            printMemoryProbe();
             return 0;
         }
         if (isHiddenPass(o.isouqPass)) {
@@ -620,6 +655,8 @@ int main(int argc, char** argv)
             for (const std::string& c : o.cases) benchHiddenCase(c, o);
             return 0;
         }
+        const bool scaling = o.threads.size() > 1;
+        if (scaling) printMemoryProbe();
         std::printf("isouq pass: %s. Load average at start: %s; %d repeats (median), memory: median of %d "
                     "fresh processes.\n\n",
             (std::string(algoName(o.isouqPass)) + (o.reuse ? ", reused mesher and mesh" : "")).c_str(),
@@ -629,6 +666,7 @@ int main(int argc, char** argv)
                     "| mem ratio | load |\n");
         std::printf("|---|--:|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
         for (const std::string& c : o.cases) benchCase(c, o);
+        if (scaling) printMemoryProbe();
     } catch (const std::exception& e) {
         std::fprintf(stderr, "isouq_bench: error: %s\n", e.what());
         return 2;
