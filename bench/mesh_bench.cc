@@ -332,6 +332,7 @@ struct Options {
     std::vector<std::string> loads; // --load FILE,...: time isouq::loadVolume (dense scans)
     std::vector<std::string> afterMesh; // --after-mesh PLY,...: time the summary's measures and the PLY write
     bool stages = false;            // --stages: per-stage thread scaling of the mesher
+    bool memoryProbe = false;       // --memory-probe: only the machine's memory scaling line
 };
 
 std::vector<std::string> splitCommas(const std::string& s)
@@ -360,6 +361,7 @@ Options parseOptions(int argc, char** argv)
         else if (arg == "--load") o.loads = splitCommas(next());
         else if (arg == "--after-mesh") o.afterMesh = splitCommas(next());
         else if (arg == "--stages") o.stages = true;
+        else if (arg == "--memory-probe") o.memoryProbe = true;
         else if (arg == "--pass") {
             o.isouqPass = algoFromName(next());
             if (o.isouqPass == Algo::VolumeToMesh)
@@ -372,7 +374,7 @@ Options parseOptions(int argc, char** argv)
             throw std::runtime_error("usage: isouq_bench [--cases sphere256,sphere512,sphere1024,smoke] "
                                      "[--threads default,1] [--repeats R] [--memory-runs M] [--data DIR] "
                                      "[--pass linear|estimate|full|hidden|hidden-unfiltered] [--reuse] [--load FILE,...] "
-                                     "[--after-mesh PLY,...] [--stages]");
+                                     "[--after-mesh PLY,...] [--stages] [--memory-probe]");
         }
     }
     return o;
@@ -618,6 +620,10 @@ int main(int argc, char** argv)
             return childMemory(argv[2], algoFromName(argv[3]),
                 std::stoi(argv[4]), argv[5]);
         const Options o = parseOptions(argc, argv);
+        if (o.memoryProbe) {
+            printMemoryProbe();
+            return 0;
+        }
         if (!o.loads.empty()) {
             std::printf("isouq::loadVolume. Load average at start: %s; %d repeats (median).\n\n", loadAverage().c_str(),
                 o.repeats);

@@ -27,9 +27,13 @@ g.name = 'ls'
 vdb.write('$input', grids=[g])"
 fi
 mpirun=(mpirun --oversubscribe --allow-run-as-root -q --bind-to none)
+# The machine's own memory scaling before each set (isouq_bench from ISOUQ's build folder).
+bench=$(dirname "$(dirname "$(readlink -f "$isouq")")")/bench/isouq_bench
+probe() { if [ -x "$bench" ]; then echo "   $("$bench" --memory-probe | head -1)"; else echo "   (no $bench: no memory probe)"; fi; }
 median() { sort -g | awk '{v[NR] = $1} END {print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
 for flags in "" "--linear-only"; do
   echo "== isouq mesh $(basename "$input") $flags -j 1, $repeats times ($(uptime | sed 's/.*load/load/'))"
+  probe
   log=$work/runs$flags.txt
   : > "$log"
   : > "$work/stages$flags.txt"

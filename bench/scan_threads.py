@@ -41,6 +41,15 @@ def run(binary, scan, threads, folder, flags):
             "rest": float(wall) - sum(stages.values()) / 1000.0}
 
 
+def memory_probe(binary):
+    """The machine's memory scaling in this run (isouq_bench --memory-probe, from the build
+    folder BIN is in), or a note that there is none."""
+    bench = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(binary))), "bench", "isouq_bench")
+    if not os.access(bench, os.X_OK):
+        return f"(no {bench}: no memory probe)"
+    return subprocess.run([bench, "--memory-probe"], check=True, capture_output=True, text=True).stdout.strip()
+
+
 def main():
     full = sys.argv[1:2] == ["--full"]
     flags, args = ([], sys.argv[2:]) if full else (["--linear-only"], sys.argv[1:])
@@ -49,6 +58,7 @@ def main():
     scan, rounds, binaries = args[0], int(args[1]), args[2:]
     load = " ".join(open("/proc/loadavg").read().split()[:3])
     print(f"pass: {'full' if full else 'linear'}; load average before: {load}")
+    print(memory_probe(binaries[0]), flush=True)
     runs = {(b, j): [] for b in binaries for j in (0, 1)}
     with tempfile.TemporaryDirectory() as folder:
         for r in range(rounds):
@@ -59,6 +69,7 @@ def main():
                     print(f"round {r + 1} -j {j} {b}: {x['wall']:.2f} s, {x['peak_mb']} MB, load {x['load']:.0f}, "
                           f"mesh {x['mesh']:.0f}, measure {x['measure']:.0f} ms, rest {x['rest']:.2f} s", flush=True)
     print("load average after:", " ".join(open("/proc/loadavg").read().split()[:3]))
+    print(memory_probe(binaries[0]))
     for b in binaries:
         med = {j: {k: statistics.median(x[k] for x in runs[(b, j)]) for k in runs[(b, j)][0]} for j in (0, 1)}
         for j in (0, 1):
