@@ -246,7 +246,7 @@ std::unique_ptr<tbb::global_control> limitThreads(int threads)
 /// "Threads"): a streaming read of 256 MiB of resident memory by 1 thread and by all, taking
 /// turns, median of 7 each. A mesher that streams its grid and output cannot scale further than
 /// this: on a host whose other guests share the memory bus, 2 threads have read as little as
-/// 1.07x one (bench/journal/2026-12-07.md, 14:10).
+/// 1.07x one (bench/journal/2026-12-07.md, "14:02").
 void printMemoryProbe()
 {
     const int all = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
@@ -266,7 +266,8 @@ void printMemoryProbe()
                 std::plus<std::uint64_t>());
             if (r >= 0) seconds[t].push_back(wallSeconds() - w0);
         }
-    const double bytes = double(words.size() * sizeof(std::uint64_t)) * double(sum > 0);
+    if (sum != 16 * words.size()) throw std::runtime_error("the memory probe summed the wrong words"); // 16 reads of 1s
+    const double bytes = double(words.size() * sizeof(std::uint64_t));
     const double one = bytes / median(seconds[0]) * 1e-9, many = bytes / median(seconds[1]) * 1e-9;
     std::printf("Memory in this run: a streaming read of 256 MiB, %.1f GB/s with 1 thread, %.1f GB/s with %d "
                 "(%.2fx); load %s.\n\n", one, many, all, many / one, loadAverage().c_str());
