@@ -83,6 +83,15 @@ struct BlockSet {
     BlockIndexTree index{-1};
 
     std::int32_t find(const Coord& origin) const { return index.getValue(origin >> 3); }
+
+    /// The block at @a origin and its + neighbours: out[dx][dy][dz] is the index of the block at
+    /// origin + 8 (dx, dy, dz), -1 where there is none (the blocks a block's triangles use).
+    void plusNeighbours(const Coord& origin, std::int32_t (&out)[2][2][2]) const
+    {
+        for (int dx = 0; dx < 2; ++dx)
+            for (int dy = 0; dy < 2; ++dy)
+                for (int dz = 0; dz < 2; ++dz) out[dx][dy][dz] = find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
+    }
 };
 
 /// Which blocks around a leaf with an active voxel are visited: all 26 neighbours (the mesher:

@@ -183,11 +183,12 @@ std::vector<std::int64_t> BrickMesher::foreignBlocks() const
     std::vector<std::int64_t> out;
     for (std::size_t i = 0; i < d.counts.size(); ++i) {
         if (d.counts[i].triangles == 0) continue;
-        const Coord& origin = blocks.origins[d.begin + i];
-        for (int k = 1; k < 8; ++k) {
-            const std::int32_t b = blocks.find(origin.offsetBy(8 * (k >> 2), 8 * ((k >> 1) & 1), 8 * (k & 1)));
-            if (b >= 0 && std::size_t(b) >= d.end) out.push_back(b);
-        }
+        std::int32_t neighbours[2][2][2];
+        blocks.plusNeighbours(blocks.origins[d.begin + i], neighbours);
+        for (const auto& plane : neighbours)
+            for (const auto& row : plane)
+                for (const std::int32_t b : row)
+                    if (b >= 0 && std::size_t(b) >= d.end) out.push_back(b);
     }
     std::sort(out.begin(), out.end());
     out.erase(std::unique(out.begin(), out.end()), out.end());

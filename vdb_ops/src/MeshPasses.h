@@ -244,9 +244,7 @@ void fillPassBlock(BlockScratch<TreeT>& s, const BlockSet& blocks, std::size_t b
         to.columns);
     if (counts.triangles == 0) return;
     std::int32_t neighbours[2][2][2];
-    for (int dx = 0; dx < 2; ++dx)
-        for (int dy = 0; dy < 2; ++dy)
-            for (int dz = 0; dz < 2; ++dz) neighbours[dx][dy][dz] = blocks.find(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
+    blocks.plusNeighbours(origin, neighbours);
     fillTriangles(s, neighbours, to.masks, to.vertexOffsets, to.flip, triangles);
 }
 
