@@ -190,12 +190,17 @@ struct MpiSession {
 };
 #endif
 
-/// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames.
-int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
+/// `isouq mesh` on a frame sequence (Sequence.h): one progress line over the frames. On MPI
+/// ranks (@a ranks) every rank meshes each frame; rank 0 shows progress and prints.
+int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet, const isouq::nodes::Ranks* ranks)
 {
+    using isouq::cli::ProgressStyle;
     sInterruptedNote = "the frames finished so far are written (--resume keeps them)";
-    isouq::cli::ProgressInterrupter progress(
-        !quiet && stderrIsTerminal() ? isouq::cli::ProgressStyle::Bar : isouq::cli::ProgressStyle::None);
+    const bool root = !ranks || ranks->rank() == 0;
+    isouq::cli::ProgressInterrupter progress(!root || quiet ? ProgressStyle::None
+            : stderrIsTerminal()                            ? ProgressStyle::Bar
+            : ranks                                         ? ProgressStyle::Lines
+                                                            : ProgressStyle::None);
     const auto start = std::chrono::steady_clock::now();
     std::vector<std::string> warnings;
     const auto onFrame = [&](std::size_t done, std::size_t total, int frame, const nlohmann::json& e) {
@@ -209,7 +214,8 @@ int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet)
             e["vertices"].get<std::size_t>(), e["triangles"].get<std::size_t>(), e["components"].get<std::size_t>());
         std::fflush(stdout);
     };
-    const nlohmann::json s = isouq::nodes::runSequence(request, &progress, onFrame, &warnings);
+    const nlohmann::json s = isouq::nodes::runSequence(request, &progress, onFrame, &warnings, ranks);
+    if (!root) return 0;
     printNotes(warnings, quiet);
     const auto& t = s["totals"];
     std::printf("%zu frames (%d empty, %d kept from an earlier run): %zu vertices, %zu triangles (isovalue %s)\n",
@@ -363,12 +369,9 @@ int isouq_cli_main(int argc, char** argv)
             meshRequest.write = plyParms;
             meshRequest.summaryPath = summaryParms.value("path", std::string());
             if (isouq::nodes::parseFramePattern(meshRequest.read.value("input", std::string()))) {
-#ifdef ISOUQ_HAVE_MPI
-                if (mpi) throw isouq::InputError("frame sequences are not supported under MPI yet (docs/mpi.md)");
-#endif
                 if (!saveGraph.empty()) throw isouq::InputError("--save-graph is for one input, not a sequence");
                 sequence.frame = meshRequest;
-                return runSequenceCommand(sequence, quiet);
+                return runSequenceCommand(sequence, quiet, ranks);
             }
             for (const CLI::Option* o : {frames, resume, skipMissing, frameJobs})
                 if (o->count() > 0)

@@ -157,7 +157,6 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
         throw InputError("INPUT '" + request.input + "' is not supported under MPI yet (.vdb files, scans, field: "
             "and formula: inputs are read by pieces; docs/mpi.md); run it in one process");
     }
-    if (request.allowEmpty) throw InputError("parameter 'allow_empty' is not supported under MPI yet (docs/mpi.md)");
     VolumeOnRanks out;
     auto piece = std::make_shared<VolumePiece>();
     if (dense) { // z-layers per rank, then each rank's blocks and their halo (SPEC §9)
@@ -182,14 +181,6 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
     const std::vector<Words> scans = ranks.allgather(packScan(scan));
     scan = ActiveValueScan();
     for (const Words& w : scans) scan.join(unpackScan(w));
-    if (std::isnan(out.volume->isovalue)) { // a fog volume without an isovalue: Otsu of the whole
-        std::array<std::uint64_t, 256> histogram{};
-        ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); });
-        std::array<std::uint64_t, 256> total{};
-        for (const Words& w : ranks.allgather(Words(histogram.begin(), histogram.end())))
-            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
-        out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total));
-    }
     // The active box of the whole grid: the union of the ranks' (a rank holds its own leaves and
     // their halo, and every leaf is some rank's), empty where a rank holds none (more ranks than
     // blocks with a surface).
@@ -201,7 +192,17 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
         const auto at = [&](int i) { return int(std::int64_t(w[std::size_t(i)])); };
         box.expand(openvdb::CoordBBox(at(0), at(1), at(2), at(3), at(4), at(5)));
     }
-    if (const std::string problem = checkScalarVolume(grid, out.volume->isovalue, scan, box); !problem.empty())
+    if (std::isnan(out.volume->isovalue)) { // a fog volume without an isovalue: Otsu of the whole
+        std::array<std::uint64_t, 256> histogram{};
+        ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); });
+        std::array<std::uint64_t, 256> total{};
+        for (const Words& w : ranks.allgather(Words(histogram.begin(), histogram.end())))
+            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
+        out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total));
+    }
+    // An empty grid with allow_empty, as one process reads it (VolumeNodes.cc): an empty mesh.
+    out.empty = request.allowEmpty && box.empty();
+    if (const std::string problem = out.empty ? "" : checkScalarVolume(grid, out.volume->isovalue, scan, box); !problem.empty())
         throw InputError(problem);
     if (!dense) releaseMappedPages(request.input); // the scans loaded the rank's leaves
     return out;

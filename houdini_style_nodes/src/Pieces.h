@@ -13,6 +13,7 @@ namespace isouq::nodes::nodes_internal {
 struct VolumeOnRanks {
     std::shared_ptr<LoadedVolume> volume;
     std::shared_ptr<const VolumePiece> piece;
+    bool empty = false; ///< no rank holds an active voxel (VolumeRequest::allowEmpty): an empty mesh
 };
 
 /// loadVolume by pieces, the block order cut into one piece per rank: a .vdb with delayed

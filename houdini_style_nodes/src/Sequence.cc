@@ -2,6 +2,7 @@
 #include "isouq/nodes/Sequence.h"
 
 #include "isouq/nodes/Graph.h"
+#include "isouq/nodes/Ranks.h"
 #include "isouq/nodes/Summary.h"
 
 #include <isouq/Columns.h>
@@ -79,10 +80,74 @@ nlohmann::json frameEntry(int frame, const std::string& file, const std::string&
     for (const ColumnInfo& c : columnTable())
         if (c.summary && s.contains(std::string(c.name))) e[std::string(c.name)] = s[std::string(c.name)];
     if (s.contains("grid")) e["grid"] = s["grid"]; // not for a frame kept by --resume
+    if (s.contains("ranks")) e["ranks"] = s["ranks"]; // under MPI (SPEC §10 "MPI")
     if (s.contains("hidden"))
         e["hidden"] = {{"components_before", s["hidden"].at("components_before")},
             {"components_after", s["hidden"].at("components_after")}};
     return e;
+}
+
+/// The frames of a run and the missing ones (listed before any work), with every output
+/// checked: none is an input or another output, each can be written; the output folders made.
+struct FramePlan {
+    std::vector<int> range, frames, missing;
+};
+
+FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, const FramePattern& out,
+    const std::optional<FramePattern>& hidden)
+{
+    const std::string inputPattern = request.frame.read.value("input", std::string());
+    FramePlan plan;
+    std::vector<int>& range = plan.range;
+    std::vector<int>& frames = plan.frames;
+    std::vector<int>& missing = plan.missing;
+    if (!request.frame.summaryPath.empty()) checkWritable(request.frame.summaryPath);
+
+    // The frames, and the missing ones listed before any work.
+    const std::set<int> onDisk = framesOnDisk(in);
+    if (!request.frames.empty()) range = parseFrameRange(request.frames);
+    else if (!onDisk.empty()) {
+        if (*onDisk.rbegin() - *onDisk.begin() >= 1000000)
+            throw InputError("'" + inputPattern + "': the frames on disk span " + std::to_string(*onDisk.begin()) + "-" +
+                std::to_string(*onDisk.rbegin()) + ", more than a million; give --frames");
+        for (int f = *onDisk.begin(); f <= *onDisk.rbegin(); ++f) range.push_back(f);
+    }
+    else throw InputError("no file matches '" + inputPattern + "'");
+    for (int f : range) (fs::is_regular_file(in.path(f)) ? frames : missing).push_back(f);
+    if (!missing.empty() && (!request.skipMissing || frames.empty()))
+        throw InputError("'" + inputPattern + "': frame" + (missing.size() > 1 ? "s " : " ") + rangesText(missing) +
+            " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) + " missing (" +
+            std::to_string(missing.size()) + " of " + std::to_string(range.size()) + ")" +
+            (frames.empty() ? "" : "; --skip-missing meshes the others"));
+
+    // No output of any frame may be an input of any frame (or what it reads, volumeInputFiles)
+    // or another output: frame 1 of out_1### would replace input frame 1001 before it is read.
+    std::map<std::string, std::string> inputs, outputs;
+    for (int f : frames) {
+        inputs.emplace(resolvedPath(in.path(f)), in.path(f));
+        for (const std::string& file : volumeInputFiles(in.path(f))) inputs.emplace(resolvedPath(file), file);
+    }
+    auto addOutput = [&](const std::string& flag, const std::string& path) {
+        const std::string r = resolvedPath(path);
+        if (auto i = inputs.find(r); i != inputs.end())
+            throw InputError(flag + " " + path + " is the input '" + i->second + "'; refusing to overwrite an input");
+        if (auto [o, fresh] = outputs.emplace(r, path); !fresh)
+            throw InputError(flag + " " + path + " is also the output '" + o->second + "'");
+    };
+    for (int f : frames) {
+        addOutput("-o", out.path(f));
+        if (hidden) addOutput("--hidden-out", hidden->path(f));
+    }
+    if (!request.frame.summaryPath.empty()) addOutput("--summary", request.frame.summaryPath);
+
+    // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
+    for (const FramePattern* p : {&out, hidden ? &*hidden : nullptr})
+        if (p && !fs::path(p->path(0)).parent_path().empty()) fs::create_directories(fs::path(p->path(0)).parent_path());
+    // Every frame's output checked as one output is, before any frame is meshed: a FIFO there
+    // would block --resume's read, a folder fail that frame after the frames before it.
+    for (const auto& [resolved, path] : outputs)
+        if (path != request.frame.summaryPath) checkWritable(path);
+    return plan;
 }
 
 } // namespace
@@ -147,9 +212,18 @@ std::vector<int> parseFrameRange(const std::string& text)
 }
 
 nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullInterrupter* interrupter,
-    const FrameCallback& onFrame, std::vector<std::string>* warnings)
+    const FrameCallback& onFrame, std::vector<std::string>* warnings, const Ranks* ranks)
 {
     const auto start = std::chrono::steady_clock::now();
+    const bool root = !ranks || ranks->rank() == 0;
+    if (ranks && request.frameJobs > 1)
+        throw InputError("--frame-jobs is for one process: under MPI the ranks mesh each frame together (docs/mpi.md)");
+    // What rank 0 alone does on ranks (the checks and listings, reading back resumed frames, the
+    // summary), agreed by every rank (Ranks::step): a failure there is an error on every rank.
+    const auto onRoot = [&](const std::function<void()>& body) {
+        if (ranks) ranks->step([&] { if (root) body(); });
+        else body();
+    };
     const std::string inputPattern = request.frame.read.value("input", std::string());
     const std::optional<FramePattern> in = parseFramePattern(inputPattern);
     if (!in) throw InputError("'" + inputPattern + "' is not a sequence (no #### or %04d in the file name)");
@@ -160,54 +234,17 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     std::optional<FramePattern> hidden;
     if (!request.frame.hiddenOutput.empty() && !(hidden = parseFramePattern(request.frame.hiddenOutput)))
         throw InputError("--hidden-out " + request.frame.hiddenOutput + ": needs a frame placeholder (####)");
-    if (!request.frame.summaryPath.empty()) checkWritable(request.frame.summaryPath);
-
-    // The frames, and the missing ones listed before any work.
-    const std::set<int> onDisk = framesOnDisk(*in);
-    std::vector<int> range;
-    if (!request.frames.empty()) range = parseFrameRange(request.frames);
-    else if (!onDisk.empty()) {
-        if (*onDisk.rbegin() - *onDisk.begin() >= 1000000)
-            throw InputError("'" + inputPattern + "': the frames on disk span " + std::to_string(*onDisk.begin()) + "-" +
-                std::to_string(*onDisk.rbegin()) + ", more than a million; give --frames");
-        for (int f = *onDisk.begin(); f <= *onDisk.rbegin(); ++f) range.push_back(f);
+    FramePlan plan;
+    onRoot([&] { plan = planFrames(request, *in, *out, hidden); });
+    const std::vector<int>& range = plan.range;     // rank 0's
+    const std::vector<int>& missing = plan.missing; // rank 0's
+    std::vector<int>& frames = plan.frames;
+    if (ranks) { // rank 0's frames, on every rank
+        Words words;
+        for (int f : frames) words.push_back(std::uint64_t(std::int64_t(f)));
+        frames.clear();
+        for (std::uint64_t w : ranks->broadcast(words, 0)) frames.push_back(int(std::int64_t(w)));
     }
-    else throw InputError("no file matches '" + inputPattern + "'");
-    std::vector<int> frames, missing;
-    for (int f : range) (fs::is_regular_file(in->path(f)) ? frames : missing).push_back(f);
-    if (!missing.empty() && (!request.skipMissing || frames.empty()))
-        throw InputError("'" + inputPattern + "': frame" + (missing.size() > 1 ? "s " : " ") + rangesText(missing) +
-            " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) + " missing (" +
-            std::to_string(missing.size()) + " of " + std::to_string(range.size()) + ")" +
-            (frames.empty() ? "" : "; --skip-missing meshes the others"));
-
-    // No output of any frame may be an input of any frame (or what it reads, volumeInputFiles)
-    // or another output: frame 1 of out_1### would replace input frame 1001 before it is read.
-    std::map<std::string, std::string> inputs, outputs;
-    for (int f : frames) {
-        inputs.emplace(resolvedPath(in->path(f)), in->path(f));
-        for (const std::string& file : volumeInputFiles(in->path(f))) inputs.emplace(resolvedPath(file), file);
-    }
-    auto addOutput = [&](const std::string& flag, const std::string& path) {
-        const std::string r = resolvedPath(path);
-        if (auto i = inputs.find(r); i != inputs.end())
-            throw InputError(flag + " " + path + " is the input '" + i->second + "'; refusing to overwrite an input");
-        if (auto [o, fresh] = outputs.emplace(r, path); !fresh)
-            throw InputError(flag + " " + path + " is also the output '" + o->second + "'");
-    };
-    for (int f : frames) {
-        addOutput("-o", out->path(f));
-        if (hidden) addOutput("--hidden-out", hidden->path(f));
-    }
-    if (!request.frame.summaryPath.empty()) addOutput("--summary", request.frame.summaryPath);
-
-    // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
-    for (const std::optional<FramePattern>* p : {&out, static_cast<const std::optional<FramePattern>*>(&hidden)})
-        if (*p && !fs::path((*p)->path(0)).parent_path().empty()) fs::create_directories(fs::path((*p)->path(0)).parent_path());
-    // Every frame's output checked as one output is, before any frame is meshed: a FIFO there
-    // would block --resume's read, a folder fail that frame after the frames before it.
-    for (const auto& [resolved, path] : outputs)
-        if (path != request.frame.summaryPath) checkWritable(path);
 
     MeshGraphRequest base = request.frame;
     base.read["allow_empty"] = true;
@@ -237,31 +274,41 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         r.read["input"] = in->path(f);
         r.output = out->path(f);
         r.hiddenOutput = hidden ? hidden->path(f) : "";
-        nlohmann::json s, entry;
+        nlohmann::json s = nlohmann::json::object(), entry; // s: rank 0's alone for a kept frame
         std::string source;
         // Outputs appear atomically, so one that reads back is complete (one that does not, a copy
         // cut short, is meshed again); it is kept if its header shows this run's settings.
-        PlyInfo info;
-        Mesh kept;
-        if (request.resume && fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput))) try {
-                kept = readPly(r.output, &info);
-            } catch (const IoError& e) {
-                info = PlyInfo();
+        bool keep = false;
+        if (request.resume) {
+            onRoot([&] {
+                PlyInfo info;
+                Mesh kept;
+                if (fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput))) try {
+                        kept = readPly(r.output, &info);
+                    } catch (const IoError& e) {
+                        info = PlyInfo();
+                        std::lock_guard<std::mutex> lock(mutex);
+                        if (warnings) warnings->push_back("frame " + std::to_string(f) + ": meshed again, as " + e.what());
+                    }
+                keep = info.isovalue &&
+                    (!with.read.contains("isovalue") || float(with.read["isovalue"].get<double>()) == *info.isovalue) &&
+                    info.method == wantMethod && (info.format == "ascii") == wantAscii &&
+                    kept.vertexAttributes.has(col::kRed) == wantColor;
+                if (!keep) return;
+                s = summarizeMesh(kept);
+                s["isovalue"] = *info.isovalue;
                 std::lock_guard<std::mutex> lock(mutex);
-                if (warnings) warnings->push_back("frame " + std::to_string(f) + ": meshed again, as " + e.what());
-            }
-        const bool keep = info.isovalue &&
-            (!with.read.contains("isovalue") || float(with.read["isovalue"].get<double>()) == *info.isovalue) &&
-            info.method == wantMethod && (info.format == "ascii") == wantAscii && kept.vertexAttributes.has(col::kRed) == wantColor;
-        if (keep) {
-            s = summarizeMesh(kept);
-            s["isovalue"] = *info.isovalue;
-            std::lock_guard<std::mutex> lock(mutex);
-            if (method.is_null()) method = info.method;
-            source = "resumed";
-            entry = frameEntry(f, r.read["input"], r.output, s);
-            entry["resumed"] = true;
-        } else {
+                if (method.is_null()) method = info.method;
+                // An empty frame's file holds the isovalue it was meshed at, not the run's: the
+                // run's comes from the first frame with data (an empty first frame of a cache
+                // made every later frame be meshed again at its 0).
+                source = kept.vertexCount() == 0 ? "empty grid" : "resumed";
+                entry = frameEntry(f, r.read["input"], r.output, s);
+                entry["resumed"] = true;
+            });
+            if (ranks) keep = ranks->broadcast({std::uint64_t(keep)}, 0)[0] != 0;
+        }
+        if (!keep) {
             GraphResult result;
             // A frame that fails ends the run; the frames written so far stay (as after Ctrl-C).
             const auto failed = [&](const char* what) {
@@ -269,15 +316,15 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                     "--resume keeps them)";
             };
             try {
-                result = runGraph(parseGraph(meshGraph(r)), interrupter);
+                result = runGraph(parseGraph(meshGraph(r)), interrupter, {}, ranks);
             } catch (const IoError& e) {
                 throw IoError(failed(e.what()));
             } catch (const InputError& e) {
                 throw InputError(failed(e.what()));
             }
-            s = result.outputs.at(kMeshGraphSummary).at("summary");
+            s = result.outputs.at(kMeshGraphSummary).at("summary"); // on ranks other than 0, no counts
             source = s.value("isovalue_source", std::string());
-            entry = frameEntry(f, r.read["input"], r.output, s);
+            if (root) entry = frameEntry(f, r.read["input"], r.output, s);
             std::lock_guard<std::mutex> lock(mutex);
             if (warnings)
                 for (const std::string& w : result.warnings) warnings->push_back("frame " + std::to_string(f) + ": " + w);
@@ -285,8 +332,14 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         }
         std::lock_guard<std::mutex> lock(mutex);
         entries[i] = entry;
-        if (onFrame) onFrame(++done, frames.size(), f, entry);
-        return std::make_tuple(source, s.value("isovalue", 0.0), s.value("grid", std::string()));
+        if (onFrame && root) onFrame(++done, frames.size(), f, entry);
+        auto outcome = std::make_tuple(source, s.value("isovalue", 0.0), s.value("grid", std::string()));
+        if (ranks) { // rank 0's, which alone reads a resumed frame back
+            const nlohmann::json j = nlohmann::json::parse(textOfWords(ranks->broadcast(
+                wordsOfText(nlohmann::json::array({source, std::get<1>(outcome), std::get<2>(outcome)}).dump()), 0)));
+            outcome = std::make_tuple(j[0].get<std::string>(), j[1].get<double>(), j[2].get<std::string>());
+        }
+        return outcome;
     };
 
     // One isovalue for every frame: given, or the default of the first frame that has data. One
@@ -334,22 +387,25 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     for (std::thread& t : workers) t.join();
     if (failure) std::rethrow_exception(failure);
 
-    nlohmann::json totals = {{"frames", frames.size()}, {"vertices", 0}, {"triangles", 0}, {"empty", 0},
-        {"resumed", 0}, {"missing", missing}};
-    for (const nlohmann::json& e : entries) {
-        totals["vertices"] = totals["vertices"].get<std::size_t>() + e["vertices"].get<std::size_t>();
-        totals["triangles"] = totals["triangles"].get<std::size_t>() + e["triangles"].get<std::size_t>();
-        totals["empty"] = totals["empty"].get<int>() + int(e["empty"].get<bool>());
-        totals["resumed"] = totals["resumed"].get<int>() + int(e.value("resumed", false));
-    }
-    nlohmann::json summary = {{"frames", entries}, {"totals", totals}, {"isovalue", isovalue},
-        {"isovalue_source", isovalueSource}, {"method", method},
-        {"sequence", {{"input", inputPattern}, {"output", request.frame.output}, {"first", range.front()},
-                         {"last", range.back()}, {"step", range.size() > 1 ? range[1] - range[0] : 1}}}};
-    if (hidden) summary["sequence"]["hidden_output"] = request.frame.hiddenOutput;
-    if (base.read.contains("grid")) summary["sequence"]["grid"] = base.read["grid"];
-    summary["timings_ms"] = {{"total", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count()}};
-    if (!request.frame.summaryPath.empty()) writeTextFileAtomic(request.frame.summaryPath, summary.dump(2) + "\n");
+    nlohmann::json summary = nlohmann::json::object(); // on ranks other than 0, empty
+    onRoot([&] {
+        nlohmann::json totals = {{"frames", frames.size()}, {"vertices", 0}, {"triangles", 0}, {"empty", 0},
+            {"resumed", 0}, {"missing", missing}};
+        for (const nlohmann::json& e : entries) {
+            totals["vertices"] = totals["vertices"].get<std::size_t>() + e["vertices"].get<std::size_t>();
+            totals["triangles"] = totals["triangles"].get<std::size_t>() + e["triangles"].get<std::size_t>();
+            totals["empty"] = totals["empty"].get<int>() + int(e["empty"].get<bool>());
+            totals["resumed"] = totals["resumed"].get<int>() + int(e.value("resumed", false));
+        }
+        summary = {{"frames", entries}, {"totals", totals}, {"isovalue", isovalue},
+            {"isovalue_source", isovalueSource}, {"method", method},
+            {"sequence", {{"input", inputPattern}, {"output", request.frame.output}, {"first", range.front()},
+                             {"last", range.back()}, {"step", range.size() > 1 ? range[1] - range[0] : 1}}}};
+        if (hidden) summary["sequence"]["hidden_output"] = request.frame.hiddenOutput;
+        if (base.read.contains("grid")) summary["sequence"]["grid"] = base.read["grid"];
+        summary["timings_ms"] = {{"total", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count()}};
+        if (!request.frame.summaryPath.empty()) writeTextFileAtomic(request.frame.summaryPath, summary.dump(2) + "\n");
+    });
     return summary;
 }
 

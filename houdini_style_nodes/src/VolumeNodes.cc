@@ -74,19 +74,22 @@ void cookReadVolume(CookContext& ctx)
     request.allowEmpty = p.getBool("allow_empty");
 
     std::shared_ptr<LoadedVolume> volume;
+    bool empty = false; // allow_empty and no active voxel: an empty mesh
     if (ctx.ranks) { // this rank's piece of the block order (docs/mpi.md), checked as a whole
         VolumeOnRanks piece = readVolumeOnRanks(*ctx.ranks, request, ctx.interrupter);
         volume = std::move(piece.volume);
         ctx.outputs["volume"].piece = std::move(piece.piece);
+        empty = piece.empty;
     } else {
         volume = std::make_shared<LoadedVolume>(loadVolume(request, ctx.interrupter));
-        if (request.allowEmpty && volume->grid->activeVoxelCount() == 0) {
-            ctx.warn(volume->description + ": the grid is empty; an empty mesh");
-            ctx.outputs["volume"].volume = std::move(volume);
-            return;
-        }
-        const std::string problem = checkScalarVolume(*volume->grid, volume->isovalue);
+        empty = request.allowEmpty && volume->grid->activeVoxelCount() == 0;
+        const std::string problem = empty ? "" : checkScalarVolume(*volume->grid, volume->isovalue);
         if (!problem.empty()) throw InputError(problem);
+    }
+    if (empty) {
+        ctx.warn(volume->description + ": the grid is empty; an empty mesh");
+        ctx.outputs["volume"].volume = std::move(volume);
+        return;
     }
     if (volume->isovalueSource != "given") {
         std::ostringstream line;

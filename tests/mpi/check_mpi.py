@@ -10,7 +10,8 @@ field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 3
 (field:sphere at 8^3 and an 8x8x64 scan with its surface in the top layers: ranks with nothing),
 scans with headers written here from the data's raw scans by nibabel, tifffile and pydicom
 (SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt,
-threads (-j 0's share of the cores), progress (rank 0's progress lines).
+threads (-j 0's share of the cores), progress (rank 0's progress lines), sequence (a .vdb cache
+of four frames, the first empty: every frame, --resume, a broken frame and the sequence errors).
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -343,6 +344,100 @@ def bad_input(args):
         print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
 
 
+def write_smoke_sequence(folder):
+    """A fog cache written by pyopenvdb: smoke_0001.vdb to smoke_0004.vdb, grid 'density', frame 1
+    with no active voxel (nothing emitted yet), then a soft ball that grows and moves."""
+    import pyopenvdb as vdb
+    os.makedirs(folder, exist_ok=True)
+    z, y, x = np.mgrid[0:40, 0:40, 0:40].astype(np.float32)
+    for f in range(1, 5):
+        g = vdb.FloatGrid()
+        g.name = "density"
+        g.gridClass = vdb.GridClass.FOG_VOLUME
+        if f > 1:
+            d = np.sqrt((x - 20 + f) ** 2 + (y - 18) ** 2 + (z - 20) ** 2)
+            g.copyFromArray(np.clip((6 + 3 * f - d) / 4, 0, 1).astype(np.float32).transpose(2, 1, 0).copy(), tolerance=0)
+        vdb.write(os.path.join(folder, f"smoke_{f:04d}.vdb"), grids=[g])
+    return os.path.join(folder, "smoke_####.vdb")
+
+
+def sequence(args):
+    """A frame sequence under mpirun against one process (docs/mpi.md "Sequences"): each frame's
+    PLY byte-identical, the same printed lines, the sequence summary equal plus each frame's
+    ranks block; then --resume after a lost frame, and the errors of a sequence (a frame cut
+    short, missing frames, --frame-jobs) as one error line and exit 2 from every rank."""
+    work = os.path.join(args.work, f"sequence_np{args.np}")
+    inputs = write_smoke_sequence(os.path.join(work, "cache"))
+    dirs = {who: os.path.join(work, who) for who in ("one", "mpi")}
+    for d in dirs.values():
+        os.makedirs(d, exist_ok=True)
+        for f in glob.glob(os.path.join(d, "*")) + glob.glob(os.path.join(d, ".isouq-*")):
+            os.remove(f)
+
+    def command(who, *extra):
+        return [args.cli, "mesh", inputs, "-o", os.path.join(dirs[who], "m_####.ply"), "--summary",
+                os.path.join(dirs[who], "s.json"), "-j", "1"] + list(extra)
+
+    def both(*extra):
+        one, many = run(command("one", *extra)), run(mpirun(args, args.np) + command("mpi", *extra))
+        if one.returncode != 0 or many.returncode != 0:
+            sys.exit(f"exit {one.returncode} and {many.returncode}: {one.stderr}\n{many.stderr}")
+        if many.stdout != one.stdout.replace(dirs["one"], dirs["mpi"]):
+            sys.exit(f"printed lines differ:\n{one.stdout}\n{many.stdout}")
+        for f in range(1, 5):
+            a, b = (open(os.path.join(dirs[w], f"m_{f:04d}.ply"), "rb").read() for w in ("one", "mpi"))
+            if a != b:
+                sys.exit(f"frame {f}: the PLY files differ ({len(a)} and {len(b)} bytes)")
+        s1, s2 = (json.load(open(os.path.join(dirs[w], "s.json"))) for w in ("one", "mpi"))
+        for s in (s1, s2):
+            s.pop("timings_ms")
+            s["sequence"].pop("output")
+            for e in s["frames"]:
+                e.pop("output")
+        for e in s2["frames"]:
+            ranks = e.pop("ranks", None)
+            if e.get("resumed"):
+                continue
+            if len(ranks) != args.np or sum(r["triangles"] for r in ranks) != e["triangles"]:
+                sys.exit(f"frame {e['frame']}: ranks block {ranks}")
+        if s1 != s2:
+            sys.exit(f"sequence summaries differ:\n{s1}\n{s2}")
+        return s2
+
+    s = both()
+    if [e["empty"] for e in s["frames"]] != [True, False, False, False] or s["totals"]["triangles"] == 0:
+        sys.exit(f"frames: {s['frames']}")
+    for who in dirs:  # a lost frame, meshed again; the others kept
+        os.remove(os.path.join(dirs[who], "m_0003.ply"))
+    s = both("--resume")
+    if [bool(e.get("resumed")) for e in s["frames"]] != [True, True, False, True]:
+        sys.exit(f"--resume: {s['frames']}")
+
+    broken = os.path.join(work, "broken")
+    write_smoke_sequence(broken)
+    frame3 = os.path.join(broken, "smoke_0003.vdb")
+    open(frame3, "wb").write(open(frame3, "rb").read()[:2000])
+    out = os.path.join(work, "bad", "m_####.ply")
+    cases = [([os.path.join(broken, "smoke_####.vdb")], ["m_0001.ply", "m_0002.ply"]),
+             ([inputs, "--frames", "1-6"], []), ([inputs, "--frame-jobs", "2"], [])]
+    for extra, kept in cases:
+        for f in glob.glob(os.path.join(work, "bad", "*")) + glob.glob(os.path.join(work, "bad", ".isouq-*")):
+            os.remove(f)
+        r = run(mpirun(args, args.np) + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+        lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
+        if r.returncode != 2 or len(lines) != 1:
+            sys.exit(f"{extra}: exit {r.returncode}, error lines {lines}\n{r.stderr}")
+        left = sorted(os.listdir(os.path.join(work, "bad"))) if os.path.isdir(os.path.join(work, "bad")) else []
+        if left != kept:
+            sys.exit(f"{extra}: left {left}, expected {kept}")
+        if "--frame-jobs" not in extra:  # one process says the same
+            one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
+            if one.returncode != 2 or one.stderr.strip().splitlines()[-1] != lines[0]:
+                sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
+        print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
+    print(f"np {args.np}: sequence: byte-identical PLY files, equal summaries, --resume")
+
+
 def big_sphere(work):
     # Big enough that a run on a quiet machine is still meshing when the signal comes.
     path = os.path.join(work, "big_sphere_r400.vdb")
@@ -526,6 +621,8 @@ def main():
         threads(args)
     elif args.case == "progress":
         progress(args)
+    elif args.case == "sequence":
+        sequence(args)
     else:
         sys.exit("unknown case " + args.case)
 

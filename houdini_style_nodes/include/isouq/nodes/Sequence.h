@@ -17,6 +17,8 @@
 
 namespace isouq::nodes {
 
+class Ranks;
+
 /// A path with a frame-number placeholder in its file name.
 struct FramePattern {
     std::string prefix, suffix; ///< the path around the placeholder
@@ -46,9 +48,12 @@ struct SequenceRequest {
 using FrameCallback = std::function<void(std::size_t done, std::size_t total, int frame, const nlohmann::json& entry)>;
 
 /// Meshes every frame; returns the sequence summary (`frames`, `totals`, `isovalue`, ...).
-/// Frames are committed one by one: an interruption leaves the finished ones.
+/// Frames are committed one by one: an interruption leaves the finished ones. On @a ranks
+/// (docs/mpi.md "Sequences") every rank meshes each frame in turn, as `isouq mesh` does one
+/// input; rank 0 checks the run, lists the frames, calls @a onFrame, gets the warnings and the
+/// summary (the other ranks an empty object); frameJobs must be 1.
 /// @throw InputError (missing frames listed, bad patterns), IoError, InterruptedError.
 nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullInterrupter* interrupter,
-    const FrameCallback& onFrame = {}, std::vector<std::string>* warnings = nullptr);
+    const FrameCallback& onFrame = {}, std::vector<std::string>* warnings = nullptr, const Ranks* ranks = nullptr);
 
 } // namespace isouq::nodes
