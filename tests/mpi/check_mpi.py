@@ -435,6 +435,25 @@ def sequence(args):
             if one.returncode != 2 or one.stderr.strip().splitlines()[-1] != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
         print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
+    if args.np <= 2:  # Ctrl-C as srun forwards it, in the first of three frames of big_sphere
+        frames = os.path.join(work, "big")
+        os.makedirs(frames, exist_ok=True)
+        for f in range(1, 4):
+            link = os.path.join(frames, f"big_{f:04d}.vdb")
+            if not os.path.lexists(link):
+                os.symlink(big_sphere(args.work), link)
+        out = os.path.join(work, "bad", "big_####.ply")
+        p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", os.path.join(frames, "big_####.vdb"), "-o", out,
+                                                      "--summary", os.path.join(work, "bad", "s.json"), "-j", "1",
+                                                      "--hidden-features", "--no-hidden-filter", "--subdivisions", "12"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for pid in ranks_with_handlers(args, p):
+            os.kill(pid, signal.SIGINT)
+        got, err = p.communicate(timeout=300)
+        left = os.listdir(os.path.join(work, "bad"))
+        if p.returncode != 130 or "the frames finished so far are written" not in err or left:
+            sys.exit(f"SIGINT in a sequence: exit {p.returncode}, left {left}\n{got}\n{err}")
+        print(f"np {args.np}: SIGINT in a sequence's first frame: exit 130, nothing written")
     print(f"np {args.np}: sequence: byte-identical PLY files, equal summaries, --resume")
 
 
@@ -466,6 +485,17 @@ def handles_signals(pid):
     return all(caught >> (s - 1) & 1 for s in (signal.SIGINT, signal.SIGTERM))
 
 
+def ranks_with_handlers(args, p):
+    """The ranks of mpirun @p once each has its SIGINT and SIGTERM handlers (/proc's SigCgt),
+    however slow its start (sanitizers): the run has seconds of work left then."""
+    ranks = []
+    deadline = time.time() + 300
+    while time.time() < deadline and not (len(ranks) == args.np and all(map(handles_signals, ranks))):
+        ranks = children(p.pid)
+        time.sleep(0.02)
+    return ranks
+
+
 def interrupt(args):
     work = os.path.join(args.work, f"interrupt_np{args.np}")
     os.makedirs(work, exist_ok=True)
@@ -481,13 +511,7 @@ def interrupt(args):
                                                       "--hidden-features", "--no-hidden-filter",
                                                       "--subdivisions", "12"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        # Signal once every rank has its SIGINT and SIGTERM handlers (/proc's SigCgt), however
-        # slow its start (sanitizers): the run has seconds of work left then.
-        ranks = []
-        deadline = time.time() + 300
-        while time.time() < deadline and not (len(ranks) == args.np and all(map(handles_signals, ranks))):
-            ranks = children(p.pid)
-            time.sleep(0.02)
+        ranks = ranks_with_handlers(args, p)
         if target == "ranks":
             for pid in ranks:
                 os.kill(pid, signal.SIGINT)
