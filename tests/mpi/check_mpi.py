@@ -409,9 +409,11 @@ def sequence(args):
         sys.exit(f"frames: {s['frames']}")
     for who in dirs:  # a lost frame, meshed again; the others kept
         os.remove(os.path.join(dirs[who], "m_0003.ply"))
-    s = both("--resume")
-    if [bool(e.get("resumed")) for e in s["frames"]] != [True, True, False, True]:
-        sys.exit(f"--resume: {s['frames']}")
+    first = s
+    s = both("--resume")  # the empty frame 1 does not set the isovalue: frame 2 does, as before
+    if [bool(e.get("resumed")) for e in s["frames"]] != [True, True, False, True] or \
+            (s["isovalue"], s["totals"]["triangles"]) != (first["isovalue"], first["totals"]["triangles"]):
+        sys.exit(f"--resume: {s}")
 
     broken = os.path.join(work, "broken")
     write_smoke_sequence(broken)
