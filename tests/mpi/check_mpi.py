@@ -418,7 +418,8 @@ def sequence(args):
     broken = os.path.join(work, "broken")
     write_smoke_sequence(broken)
     frame3 = os.path.join(broken, "smoke_0003.vdb")
-    open(frame3, "wb").write(open(frame3, "rb").read()[:2000])
+    head = open(frame3, "rb").read()[:2000]
+    open(frame3, "wb").write(head)  # cut short: grid 'density' ends past the end of the file
     out = os.path.join(work, "bad", "m_####.ply")
     cases = [([os.path.join(broken, "smoke_####.vdb")], ["m_0001.ply", "m_0002.ply"]),
              ([inputs, "--frames", "1-6"], []), ([inputs, "--frame-jobs", "2"], [])]
