@@ -33,14 +33,35 @@ const std::vector<std::uint8_t>* hiddenColumn(const MeshData& m)
     return m.mesh.vertexAttributes.find<std::uint8_t>(col::kHidden);
 }
 
-/// numpy.percentile's default ("linear"): sorted a, position p/100 (n-1), linear between ranks.
+/// numpy.percentile's default ("linear") of n ascending values, the i-th @a at(i): position
+/// p/100 (n-1), linear between the values on either side.
+template <typename At>
+double percentileAt(std::uint64_t n, double p, At&& at)
+{
+    if (n == 0) return std::numeric_limits<double>::quiet_NaN();
+    const double pos = p / 100.0 * double(n - 1);
+    const std::uint64_t lo = std::uint64_t(std::floor(pos));
+    if (lo + 1 >= n) return at(n - 1);
+    return at(lo) + (pos - double(lo)) * (at(lo + 1) - at(lo));
+}
+
 double percentileOf(const std::vector<double>& sorted, double p)
 {
-    if (sorted.empty()) return std::numeric_limits<double>::quiet_NaN();
-    const double pos = p / 100.0 * double(sorted.size() - 1);
-    const std::size_t lo = std::size_t(std::floor(pos));
-    if (lo + 1 >= sorted.size()) return sorted.back();
-    return sorted[lo] + (pos - double(lo)) * (sorted[lo + 1] - sorted[lo]);
+    return percentileAt(sorted.size(), p, [&](std::uint64_t i) { return sorted[std::size_t(i)]; });
+}
+
+/// percentileOf each of @a ps over every rank's @a values together, @a n of them finite: the
+/// same values on either side as one process's, so the same bits (orderStatisticsOnRanks).
+std::vector<double> percentilesOnRanks(const Ranks& ranks, const std::vector<float>& values, std::uint64_t n,
+    const std::vector<double>& ps)
+{
+    std::vector<std::uint64_t> ks; // the positions percentileAt reads, collected by a dry run
+    for (double p : ps) percentileAt(n, p, [&](std::uint64_t i) { return ks.push_back(i), 0.0; });
+    const std::vector<double> kth = orderStatisticsOnRanks(ranks, values, ks).kth;
+    const auto at = [&](std::uint64_t i) { return kth[std::size_t(std::find(ks.begin(), ks.end(), i) - ks.begin())]; };
+    std::vector<double> out;
+    for (double p : ps) out.push_back(percentileAt(n, p, at));
+    return out;
 }
 
 /// The finite values of a measure, ascending (the percentiles of C1 and C4).
@@ -101,17 +122,27 @@ void cookColorMap(CookContext& ctx)
     const std::string measure = p.getString("measure");
     auto out = std::make_shared<MeshData>(inputMesh(ctx));
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
-    const std::vector<double> sorted = sortedFinite(values);
     const bool given = p.isSet("range");
     double lo = 0.0, hi = 0.0;
+    std::uint64_t all = values.size(), finite = 0; // of the whole mesh (every rank's piece)
     if (given) {
         const auto r = p.at("range").get<std::array<double, 2>>();
         lo = r[0], hi = r[1];
         if (!(lo < hi)) throw std::invalid_argument("parameter 'range': LO must be below HI");
-    } else if (!sorted.empty()) {
-        lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
     }
-    const std::size_t noValue = values.size() - sorted.size();
+    if (ctx.ranks) { // every rank's values together (docs/mpi.md)
+        const ValuesOnRanks whole = orderStatisticsOnRanks(*ctx.ranks, values, {});
+        all = whole.count, finite = whole.finite;
+        if (!given && finite > 0) {
+            const std::vector<double> range = percentilesOnRanks(*ctx.ranks, values, finite, {2.0, 98.0});
+            lo = range[0], hi = range[1];
+        }
+    } else {
+        const std::vector<double> sorted = sortedFinite(values);
+        finite = sorted.size();
+        if (!given && !sorted.empty()) lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
+    }
+    const std::uint64_t noValue = all - finite;
     if (noValue)
         ctx.warn(std::to_string(noValue) + " vertices have no finite " + measure + ": coloured grey (128, 128, 128)");
     const ColorMap map = *colorMapFromString(p.getString("colormap"));
@@ -366,7 +397,8 @@ void addAnalysisNodes(std::vector<NodeType>& types)
                 "--color-range"),
         },
         {{"mesh", "mesh", "A mesh with the measure"}},
-        {{"mesh", "mesh", "The mesh with `red green blue` (uint8) and `quality` (float)"}}, cookColorMap});
+        {{"mesh", "mesh", "The mesh with `red green blue` (uint8) and `quality` (float)"}}, cookColorMap,
+        /*meshWriter=*/false, /*onRanks=*/true});
 
     types.push_back({"summary", "Summary",
         "C7 (SPEC §7, §8): counts, topology, {min, max, mean, rms} of each measure, and the blocks of the "

@@ -545,6 +545,49 @@ nlohmann::json summarizeOnRanks(const Ranks& ranks, const Mesh& piece, const Mes
     return s;
 }
 
+ValuesOnRanks orderStatisticsOnRanks(const Ranks& ranks, const std::vector<float>& values,
+    const std::vector<std::uint64_t>& ks)
+{
+    // Ordered bits: a float's order is its key's as an unsigned integer.
+    const auto keyOf = [](float v) {
+        std::uint32_t u = 0;
+        v = v == 0.0f ? 0.0f : v;
+        std::memcpy(&u, &v, sizeof u);
+        return u & 0x80000000u ? ~u : u | 0x80000000u;
+    };
+    ValuesOnRanks out;
+    const auto finite = std::count_if(values.begin(), values.end(), [](float v) { return std::isfinite(v); });
+    for (const Words& w : ranks.allgather({values.size(), std::uint64_t(finite)})) out.count += w[0], out.finite += w[1];
+    const std::size_t n = ks.size();
+    std::vector<std::uint32_t> prefix(n, 0); // the key's bytes found so far
+    std::vector<std::uint64_t> left = ks;     // the position sought among the keys with that prefix
+    for (int shift = 24; shift >= 0; shift -= 8) {
+        const std::uint32_t high = shift == 24 ? 0 : ~std::uint32_t(0) << (shift + 8);
+        Words histogram(256 * n, 0);
+        for (float v : values)
+            if (std::isfinite(v)) {
+                const std::uint32_t key = keyOf(v);
+                for (std::size_t i = 0; i < n; ++i)
+                    if ((key & high) == prefix[i]) ++histogram[256 * i + ((key >> shift) & 255u)];
+            }
+        Words total(histogram.size(), 0);
+        for (const Words& w : ranks.allgather(histogram))
+            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
+        for (std::size_t i = 0; i < n; ++i) {
+            std::uint32_t byte = 0;
+            while (left[i] >= total[256 * i + byte]) left[i] -= total[256 * i + byte++];
+            prefix[i] |= byte << shift;
+        }
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        const std::uint32_t u = prefix[i] & 0x80000000u ? prefix[i] & 0x7fffffffu : ~prefix[i];
+        float v = 0.0f;
+        std::memcpy(&v, &u, sizeof v);
+        out.kth.push_back(v);
+    }
+    return out;
+}
+
 void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::json& timings, nlohmann::json& summary)
 {
     const MeshPiece& piece = *mesh.piece;

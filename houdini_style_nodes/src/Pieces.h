@@ -28,6 +28,17 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
 std::shared_ptr<const MeshPiece> meshOnRanks(const Ranks& ranks, const openvdb::FloatGrid& grid,
     const VolumePiece& read, const MeshSettings& settings, Mesh& mesh, openvdb::util::NullInterrupter* interrupter);
 
+/// Every rank's @a values together (a vertex column of a mesh by pieces): how many, how many
+/// finite and, for each k of @a ks (each below that), the k-th smallest finite value (0-based)
+/// as one process's sorted copy holds it: a radix select on the values' ordered bits, four
+/// rounds of histograms summed over the ranks (-0 counts as 0). The colour map's percentiles.
+struct ValuesOnRanks {
+    std::uint64_t count = 0, finite = 0;
+    std::vector<double> kth;
+};
+ValuesOnRanks orderStatisticsOnRanks(const Ranks& ranks, const std::vector<float>& values,
+    const std::vector<std::uint64_t>& ks);
+
 /// summarizeMesh of the whole mesh, on rank 0 (an empty object elsewhere): sums carried from
 /// rank to rank in the one-process order (bit-equal), edges and components joined as
 /// topologyOnRanks does.

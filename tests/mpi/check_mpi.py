@@ -9,7 +9,7 @@ field (field:tubey at 48^3, with its truth node), field_hidden (field:tubey at 3
 --hidden-features --hidden-out: both PLY files), formula (formula: at 40^3, cubic), few_blocks
 (field:sphere at 8^3 and an 8x8x64 scan with its surface in the top layers: ranks with nothing),
 scans with headers written here from the data's raw scans by nibabel, tifffile and pydicom
-(SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), bad_input, interrupt,
+(SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), color (--color-by), bad_input, interrupt,
 threads (-j 0's share of the cores), progress (rank 0's progress lines), sequence (a .vdb cache
 of four frames, the first empty: every frame, --resume, a broken frame and the sequence errors).
 Exit 0 when the check holds; prints what differs otherwise.
@@ -630,6 +630,11 @@ def main():
     elif args.case == "formula":
         compare(args, "formula", "formula:x*x+y*y+z*z-0.5+0.1*sin(9*x)", ["--resolution", "40", "--method", "cubic"],
                 dims=(40, 40, 40))
+    elif args.case == "color":  # --color-by: the 2nd and 98th percentiles of every rank's values
+        compare(args, "color", sphere, ["--color-by", "err_est"], grid="ls_sphere")
+        # A signed measure (negative keys of the radix select) and the hidden mesh's NaN rows.
+        compare(args, "color_signed", "field:tubey", ["--color-by", "dist_true", "--colormap", "coolwarm"],
+                dims=(32, 32, 32), hidden=True)
     elif args.case == "few_blocks":  # ranks with no active voxel: a tiny field, a scan's surface in its top layers
         compare(args, "few_blocks_field", "field:sphere", ["--resolution", "8"], dims=(8, 8, 8))
         z, y, x = np.mgrid[0:64, 0:8, 0:8]
