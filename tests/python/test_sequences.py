@@ -147,6 +147,21 @@ def test_resume_keeps_finished_frames_and_frame_jobs_change_nothing(isouq_cli, t
         assert a["err_est"] == r["err_est"]
 
 
+def test_resume_after_an_empty_first_frame_keeps_the_runs_isovalue(isouq_cli, tmp_path):
+    """An empty first frame records the isovalue it was meshed at (0, an empty grid's) in its
+    PLY; --resume took that for the run's and meshed every other frame again at 0 (no surface
+    in a fog volume). The first frame with data sets it, as in the first run."""
+    fog_cache(tmp_path / "cache", empty=(1,))
+    run(isouq_cli, "cache/fluid_data_####.vdb", "-o", "a/m.####.ply", "--summary", "a.json", cwd=tmp_path)
+    (tmp_path / "a/m.0003.ply").unlink()
+    run(isouq_cli, "cache/fluid_data_####.vdb", "-o", "a/m.####.ply", "--resume", "--summary", "r.json", cwd=tmp_path)
+    first, resumed = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "r.json"))
+    assert first["isovalue_source"].startswith("Otsu") and first["frames"][0]["empty"]
+    assert resumed["isovalue"] == pytest.approx(first["isovalue"])
+    assert resumed["totals"]["resumed"] == 5
+    assert [e["triangles"] for e in resumed["frames"]] == [e["triangles"] for e in first["frames"]]
+
+
 def test_ctrl_c_leaves_every_finished_frame_and_nothing_partial(isouq_cli, tmp_path):
     cache = tmp_path / "cache"
     cache.mkdir()
