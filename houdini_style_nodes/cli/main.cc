@@ -112,19 +112,24 @@ void printResult(const nlohmann::json& s, const std::string& summaryPath)
     if (!summaryPath.empty()) std::printf("wrote %s: summary (JSON)\n", shown(summaryPath).c_str());
 }
 
+/// How a run shows progress: a bar on a terminal; on MPI ranks (@a ranks) rank 0 alone, as
+/// lines when its stderr is the launcher's pipe.
+isouq::cli::ProgressStyle progressStyle(bool quiet, const isouq::nodes::Ranks* ranks)
+{
+    using isouq::cli::ProgressStyle;
+    return quiet || (ranks && ranks->rank() != 0) ? ProgressStyle::None
+        : stderrIsTerminal()                       ? ProgressStyle::Bar
+        : ranks                                    ? ProgressStyle::Lines
+                                                   : ProgressStyle::None;
+}
+
 /// Runs @a graph (the mesh command's or a file's) with a progress bar; prints its warnings. On
-/// MPI ranks (@a ranks) rank 0 shows progress (as lines when its stderr is the launcher's pipe)
-/// and prints.
+/// MPI ranks (@a ranks) rank 0 shows progress and prints.
 isouq::nodes::GraphResult runWithProgress(const isouq::nodes::Graph& graph, bool quiet,
     const isouq::nodes::Ranks* ranks)
 {
-    using isouq::cli::ProgressStyle;
     const bool root = !ranks || ranks->rank() == 0;
-    const ProgressStyle style = !root || quiet ? ProgressStyle::None
-        : stderrIsTerminal()                   ? ProgressStyle::Bar
-        : ranks                                ? ProgressStyle::Lines
-                                               : ProgressStyle::None;
-    isouq::cli::ProgressInterrupter progress(style);
+    isouq::cli::ProgressInterrupter progress(progressStyle(quiet, ranks));
     isouq::nodes::GraphResult result = isouq::nodes::runGraph(graph, &progress, {}, ranks);
     if (root) printNotes(result.warnings, quiet);
     return result;
@@ -194,13 +199,9 @@ struct MpiSession {
 /// ranks (@a ranks) every rank meshes each frame; rank 0 shows progress and prints.
 int runSequenceCommand(const isouq::nodes::SequenceRequest& request, bool quiet, const isouq::nodes::Ranks* ranks)
 {
-    using isouq::cli::ProgressStyle;
     sInterruptedNote = "the frames finished so far are written (--resume keeps them)";
     const bool root = !ranks || ranks->rank() == 0;
-    isouq::cli::ProgressInterrupter progress(!root || quiet ? ProgressStyle::None
-            : stderrIsTerminal()                            ? ProgressStyle::Bar
-            : ranks                                         ? ProgressStyle::Lines
-                                                            : ProgressStyle::None);
+    isouq::cli::ProgressInterrupter progress(progressStyle(quiet, ranks));
     const auto start = std::chrono::steady_clock::now();
     std::vector<std::string> warnings;
     const auto onFrame = [&](std::size_t done, std::size_t total, int frame, const nlohmann::json& e) {

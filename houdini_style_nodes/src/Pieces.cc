@@ -558,6 +558,7 @@ ValuesOnRanks orderStatisticsOnRanks(const Ranks& ranks, const std::vector<float
     ValuesOnRanks out;
     const auto finite = std::count_if(values.begin(), values.end(), [](float v) { return std::isfinite(v); });
     for (const Words& w : ranks.allgather({values.size(), std::uint64_t(finite)})) out.count += w[0], out.finite += w[1];
+    if (ks.empty()) return out; // the counts alone
     const std::size_t n = ks.size();
     std::vector<std::uint32_t> prefix(n, 0); // the key's bytes found so far
     std::vector<std::uint64_t> left = ks;     // the position sought among the keys with that prefix

@@ -330,9 +330,11 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                 for (const std::string& w : result.warnings) warnings->push_back("frame " + std::to_string(f) + ": " + w);
             method = s.value("method", nlohmann::json());
         }
-        std::lock_guard<std::mutex> lock(mutex);
-        entries[i] = entry;
-        if (onFrame && root) onFrame(++done, frames.size(), f, entry);
+        {
+            std::lock_guard<std::mutex> lock(mutex);
+            entries[i] = entry;
+            if (onFrame && root) onFrame(++done, frames.size(), f, entry);
+        }
         auto outcome = std::make_tuple(source, s.value("isovalue", 0.0), s.value("grid", std::string()));
         if (ranks) { // rank 0's, which alone reads a resumed frame back
             const nlohmann::json j = nlohmann::json::parse(textOfWords(ranks->broadcast(
