@@ -40,8 +40,12 @@ public:
     ~MpiSharedFile() override { MPI_File_close(&mFile); }
     void writeAt(std::uint64_t offset, const char* data, std::size_t bytes, const std::string& what) override
     {
-        if (MPI_File_write_at(mFile, MPI_Offset(offset), data, int(bytes), MPI_BYTE, MPI_STATUS_IGNORE) != MPI_SUCCESS)
-            throw IoError("cannot write " + what + ": MPI_File_write_at failed");
+        for (std::size_t done = 0; done < bytes;) { // an int of bytes a call
+            const int n = int(std::min<std::size_t>(bytes - done, std::size_t(1) << 30));
+            if (MPI_File_write_at(mFile, MPI_Offset(offset + done), data + done, n, MPI_BYTE, MPI_STATUS_IGNORE) != MPI_SUCCESS)
+                throw IoError("cannot write " + what + ": MPI_File_write_at failed");
+            done += std::size_t(n);
+        }
     }
 
 private:

@@ -52,6 +52,14 @@ void cookWriteVtp(CookContext& ctx)
     auto mesh = ctx.input("mesh")->mesh;
     const std::string path = ctx.parms.getString("path");
     const MeshFileOptions options = plyOptionsOf(*mesh);
+    if (ctx.ranks) { // as write_ply's
+        if (!mesh->piece) throw std::invalid_argument("input 'mesh' is not a mesh made by pieces");
+        const Ranks* ranks = ctx.ranks;
+        ctx.writes->push_back({path, [mesh, path, options, ranks](OutputBatch& batch) {
+            stageVtpOnRanks(*ranks, mesh->mesh, *mesh->piece, path, options, batch);
+        }});
+        return;
+    }
     ctx.writes->push_back({path, [mesh, path, options](OutputBatch& batch) { batch.addVtp(mesh->mesh, path, options); }, true});
 }
 
@@ -129,7 +137,7 @@ void addOutputNodes(std::vector<NodeType>& types)
         "column as point data and every face column as cell data under its own name, the PLY header "
         "comments as field data; raw binary appended, atomically.",
         {ending(parm("path", "Path", ParmType::Path, "out.vtp", "Output mesh (.vtp)"), {".vtp"})},
-        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWriteVtp, /*meshWriter=*/true});
+        {{"mesh", "mesh", "The mesh to write"}}, {}, cookWriteVtp, /*meshWriter=*/true, /*onRanks=*/true});
 
     types.push_back({"write_summary", "Write Summary",
         "Writes a JSON value (a summary, a CDF, compare statistics) to a file, atomically.",

@@ -112,9 +112,7 @@ struct Sets {
 };
 
 /// Rank @a rank's rows of a mesh by pieces (MeshPiece): one run per section, in section order.
-struct Runs {
-    std::vector<std::uint64_t> first, last; ///< per run, rows of the whole mesh
-    std::vector<std::size_t> local;        ///< per run, its first row in the piece
+struct Runs : PieceRuns {
     Runs(const std::vector<std::uint64_t>& begin, int rank, int size)
     {
         std::size_t rows = 0;
@@ -131,12 +129,6 @@ struct Runs {
         return -1;
     }
     std::size_t localOf(std::uint64_t g, int run) const { return local[std::size_t(run)] + std::size_t(g - first[std::size_t(run)]); }
-    std::uint64_t globalOf(std::size_t l) const
-    {
-        std::size_t r = first.size() - 1;
-        while (local[r] > l) --r;
-        return first[r] + (l - local[r]);
-    }
 };
 
 /// The rank whose rows hold row @a g of the whole mesh (MeshPiece's begin).
@@ -612,50 +604,86 @@ void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::jso
     summary["timings_ms"] = slowest;
 }
 
+namespace {
+
+/// A file every rank writes into: rank 0 creates it under its temporary name and makes its
+/// head (@a head); every rank opens it, sized by @a bytes of the head's size, and @a rows writes
+/// its part (rank 0 the head too) in one step; rank 0's @a batch commits it.
+void stageSharedFile(const Ranks& ranks, const std::string& path, const std::function<std::string(SharedMeshFile&)>& head,
+    const std::function<std::uint64_t(std::uint64_t)>& bytes,
+    const std::function<void(SharedFile&, std::uint64_t)>& rows, OutputBatch& batch)
+{
+    const int rank = ranks.rank();
+    std::unique_ptr<SharedMeshFile> file;
+    std::string text;
+    ranks.step([&] {
+        if (rank != 0) return;
+        file = std::make_unique<SharedMeshFile>(path);
+        text = head(*file);
+    });
+    const std::string temp = textOfWords(ranks.broadcast(rank == 0 ? wordsOfText(file->temporaryPath()) : Words(), 0));
+    const std::uint64_t headBytes = ranks.broadcast({text.size()}, 0)[0];
+    {
+        std::string why;
+        const std::unique_ptr<SharedFile> shared = ranks.openShared(temp, bytes(headBytes), why);
+        ranks.step([&] {
+            if (!shared) throw IoError("cannot write " + path + ": " + why);
+            if (rank == 0) shared->writeAt(0, text.data(), text.size(), path);
+            rows(*shared, headBytes);
+        });
+    }
+    if (file) batch.addShared(std::move(file));
+}
+
+} // namespace
+
 void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
     const PlyOptions& options, OutputBatch& batch)
 {
-    const int rank = ranks.rank();
     const std::uint64_t vertices = where.vertexBegin.back(), triangles = where.triangleBegin.back();
-    std::unique_ptr<SharedPlyFile> file;
-    std::string header;
-    ranks.step([&] {
-        if (rank != 0) return;
-        file = std::make_unique<SharedPlyFile>(path);
-        header = file->header(piece, vertices, triangles, options);
-    });
-    Words w = ranks.broadcast(rank == 0 ? wordsOfText(file->temporaryPath()) : Words(), 0);
-    const std::string temp = textOfWords(w);
-    const std::uint64_t headerBytes = ranks.broadcast({header.size()}, 0)[0];
     const std::pair<std::size_t, std::size_t> strides = plyRowBytes(piece);
     const std::size_t vStride = strides.first, fStride = strides.second; // captured below (C++17)
-    {
-        std::string why;
-        const std::unique_ptr<SharedFile> shared =
-            ranks.openShared(temp, headerBytes + vertices * vStride + triangles * fStride, why);
-        ranks.step([&] {
-            if (!shared) throw IoError("cannot write " + path + ": " + why);
-            if (rank == 0) shared->writeAt(0, header.data(), header.size(), path);
+    stageSharedFile(ranks, path,
+        [&](SharedMeshFile& file) { return file.plyHeader(piece, vertices, triangles, options); },
+        [&](std::uint64_t headBytes) { return headBytes + vertices * vStride + triangles * fStride; },
+        [&](SharedFile& shared, std::uint64_t headBytes) {
             // Rows go to the runs of the rank's sections in order (MeshPiece), whole rows a chunk.
-            const Runs vertexRuns(where.vertexBegin, rank, ranks.size()), faceRuns(where.triangleBegin, rank, ranks.size());
+            const Runs vertexRuns(where.vertexBegin, ranks.rank(), ranks.size()),
+                faceRuns(where.triangleBegin, ranks.rank(), ranks.size());
             std::size_t vertexRow = 0, faceRow = 0;
             plyPieceRows(piece, vertices, [&](bool faces, const char* data, std::size_t bytes) {
                 const Runs& runs = faces ? faceRuns : vertexRuns;
                 std::size_t& row = faces ? faceRow : vertexRow;
                 const std::size_t stride = faces ? fStride : vStride;
-                const std::uint64_t base = headerBytes + (faces ? vertices * vStride : 0);
+                const std::uint64_t base = headBytes + (faces ? vertices * vStride : 0);
                 while (bytes > 0) {
                     std::size_t run = runs.first.size() - 1;
                     while (runs.local[run] > row || runs.first[run] == runs.last[run]) --run;
                     const std::size_t rows = std::min<std::size_t>(bytes / stride,
                         std::size_t(runs.last[run] - runs.first[run]) - (row - runs.local[run]));
-                    shared->writeAt(base + runs.globalOf(row) * stride, data, rows * stride, path);
+                    shared.writeAt(base + runs.globalOf(row) * stride, data, rows * stride, path);
                     data += rows * stride, bytes -= rows * stride, row += rows;
                 }
             });
-        });
-    }
-    if (file) batch.addShared(std::move(file));
+        },
+        batch);
+}
+
+void stageVtpOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
+    const MeshFileOptions& options, OutputBatch& batch)
+{
+    const std::uint64_t vertices = where.vertexBegin.back(), triangles = where.triangleBegin.back();
+    std::optional<VtpPieceLayout> layout;
+    stageSharedFile(ranks, path,
+        [&](SharedMeshFile& file) { return file.vtpHead(piece, vertices, triangles, options); },
+        [&](std::uint64_t headBytes) { return layout.emplace(piece, vertices, triangles, headBytes).fileBytes(); },
+        [&](SharedFile& shared, std::uint64_t) {
+            const auto write = [&](std::uint64_t at, const char* data, std::size_t bytes) { shared.writeAt(at, data, bytes, path); };
+            if (ranks.rank() == 0) layout->frame(write);
+            layout->rows(piece, Runs(where.vertexBegin, ranks.rank(), ranks.size()),
+                Runs(where.triangleBegin, ranks.rank(), ranks.size()), write);
+        },
+        batch);
 }
 
 } // namespace nodes_internal

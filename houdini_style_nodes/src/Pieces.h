@@ -1,4 +1,4 @@
-// isouq nodes (internal): what read_volume, mesh, summary and write_ply do on ranks (Ranks.h;
+// isouq nodes (internal): what read_volume, mesh, summary, write_ply and write_vtp do on ranks (Ranks.h;
 // SPEC §9, §10 "MPI"; docs/mpi.md). Each function is collective: every rank calls it.
 #pragma once
 
@@ -58,5 +58,10 @@ void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::jso
 /// header, every rank its rows at the offsets of its piece; rank 0's @a batch commits it.
 void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
     const PlyOptions& options, OutputBatch& batch);
+
+/// writeVtp of the whole mesh by every rank, as stagePlyOnRanks: rank 0 writes the XML, the
+/// blocks' byte counts and the closing tags, every rank its rows of each block.
+void stageVtpOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
+    const MeshFileOptions& options, OutputBatch& batch);
 
 } // namespace isouq::nodes::nodes_internal

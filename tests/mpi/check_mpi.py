@@ -116,21 +116,22 @@ def layers_bound(dims, np_):
     return out, x * y * z
 
 
-def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
-    """One process against the ranks: the PLY (and with @hidden the --hidden-out PLY of
-    --hidden-features) byte for byte, the summary, the ranks block; @grid (a .vdb's) or @dims
-    (a raw scan's or a field's) bound what each rank reads."""
+def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False, ext=".ply"):
+    """One process against the ranks: the mesh (and with @hidden the --hidden-out mesh of
+    --hidden-features), a .ply or with @ext a .vtp, byte for byte, the summary, the ranks block;
+    @grid (a .vdb's) or @dims (a raw scan's or a field's) bound what each rank reads."""
     work = os.path.join(args.work, f"{name}_np{args.np}")
     os.makedirs(work, exist_ok=True)
-    outs = {who: {k: os.path.join(work, f"{who}{k}") for k in (".ply", ".json", "_hidden.ply")} for who in ("one", "mpi")}
+    meshes = (ext, "_hidden" + ext) if hidden else (ext,)
+    outs = {who: {k: os.path.join(work, f"{who}{k}") for k in meshes + (".json",)} for who in ("one", "mpi")}
     for f in list(outs["one"].values()) + list(outs["mpi"].values()):
         if os.path.exists(f):
             os.remove(f)
 
     def command(who):
         o = outs[who]
-        cmd = [args.cli, "mesh", inputs, "-o", o[".ply"], "--summary", o[".json"], "-q", "-j", "1"] + extra
-        return cmd + (["--hidden-features", "--hidden-out", o["_hidden.ply"]] if hidden else [])
+        cmd = [args.cli, "mesh", inputs, "-o", o[ext], "--summary", o[".json"], "-q", "-j", "1"] + extra
+        return cmd + (["--hidden-features", "--hidden-out", o["_hidden" + ext]] if hidden else [])
 
     one = run(command("one"))
     if one.returncode != 0:
@@ -143,7 +144,7 @@ def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
         expected = expected.replace(outs["one"][k], outs["mpi"][k])
     if many.stdout != expected:
         sys.exit(f"printed lines differ:\n{one.stdout}\n{many.stdout}")
-    for k in (".ply", "_hidden.ply") if hidden else (".ply",):
+    for k in meshes:
         a, b = open(outs["one"][k], "rb").read(), open(outs["mpi"][k], "rb").read()
         if a != b:
             at = next((i for i in range(min(len(a), len(b))) if a[i] != b[i]), min(len(a), len(b)))
@@ -187,7 +188,7 @@ def compare(args, name, inputs, extra, grid=None, dims=None, hidden=False):
         if args.np > 1 and sum(reads) >= args.np * total:
             sys.exit(f"every rank read the whole scan: {reads} of {total}")
         print(f"samples read per rank: {reads}, bounds {bounds} of {total}")
-    print(f"np {args.np}: {name}: byte-identical PLY{' files' if hidden else ''}, equal summary")
+    print(f"np {args.np}: {name}: byte-identical {ext[1:].upper()}{' files' if hidden else ''}, equal summary")
 
 
 def raw_xyz(data, name, dtype):
@@ -326,11 +327,12 @@ def bad_input(args):
     # The disk takes 100 kB of the 3.7 MB PLY (a file size limit: the same EFBIG as a quota),
     # on the ranks only: the launcher writes its own files.
     small_disk = ["prlimit", "--fsize=100000"]
-    cases = [(extra, []) for extra in inputs]
-    cases.append(([os.path.join(args.data, "sphere.vdb"), "--linear-only"], small_disk))
+    cases = [(extra, [], out) for extra in inputs]
+    cases.append(([os.path.join(args.data, "sphere.vdb"), "--linear-only"], small_disk, out))
+    cases.append(([os.path.join(args.data, "sphere.vdb"), "--linear-only"], small_disk, os.path.join(work, "out.vtp")))
     # A progress delay that is not a number of seconds, read by every rank.
-    cases.append(([os.path.join(args.data, "sphere.vdb")], ["env", "ISOUQ_PROGRESS_SECONDS=10s"]))
-    for extra, limit in cases:
+    cases.append(([os.path.join(args.data, "sphere.vdb")], ["env", "ISOUQ_PROGRESS_SECONDS=10s"], out))
+    for extra, limit, out in cases:
         r = run(mpirun(args, args.np) + limit + [args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
         lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
         if r.returncode != 2 or len(lines) != 1:
@@ -635,6 +637,11 @@ def main():
         # A signed measure (negative keys of the radix select) and the hidden mesh's NaN rows.
         compare(args, "color_signed", "field:tubey", ["--color-by", "dist_true", "--colormap", "coolwarm"],
                 dims=(32, 32, 32), hidden=True)
+    elif args.case == "vtp":  # -o .vtp: each rank's rows of every appended block at their offsets
+        compare(args, "vtp", sphere, [], grid="ls_sphere", ext=".vtp")
+        # Three sections a rank, a face column, colours (uint8 columns) and a fog volume.
+        compare(args, "vtp_hidden", "field:tubey", ["--color-by", "err_est"], dims=(32, 32, 32), hidden=True, ext=".vtp")
+        compare(args, "vtp_fog", smoke, ["--grid", "density"], grid="density", ext=".vtp")
     elif args.case == "few_blocks":  # ranks with no active voxel: a tiny field, a scan's surface in its top layers
         compare(args, "few_blocks_field", "field:sphere", ["--resolution", "8"], dims=(8, 8, 8))
         z, y, x = np.mgrid[0:64, 0:8, 0:8]

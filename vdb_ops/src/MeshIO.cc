@@ -801,7 +801,7 @@ void OutputBatch::addText(const std::string& path, const std::string& text)
     mImpl->files.push_back(std::move(file));
 }
 
-void OutputBatch::addShared(std::unique_ptr<SharedPlyFile> file) { mImpl->files.push_back(std::move(file->mFile)); }
+void OutputBatch::addShared(std::unique_ptr<SharedMeshFile> file) { mImpl->files.push_back(std::move(file->mFile)); }
 
 void OutputBatch::add(OutputBatch&& other)
 {
@@ -815,16 +815,16 @@ void OutputBatch::commit()
     mImpl->files.clear();
 }
 
-SharedPlyFile::SharedPlyFile(const std::string& path)
+SharedMeshFile::SharedMeshFile(const std::string& path)
     : mFile(std::make_unique<meshio_internal::AtomicFile>(path))
 {
 }
 
-SharedPlyFile::~SharedPlyFile() = default;
+SharedMeshFile::~SharedMeshFile() = default;
 
-const std::string& SharedPlyFile::temporaryPath() const { return mFile->temporaryPath(); }
+const std::string& SharedMeshFile::temporaryPath() const { return mFile->temporaryPath(); }
 
-std::string SharedPlyFile::header(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces,
+std::string SharedMeshFile::plyHeader(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces,
     const PlyOptions& options) const
 {
     using namespace meshio_internal;
@@ -832,7 +832,13 @@ std::string SharedPlyFile::header(const Mesh& piece, std::uint64_t vertices, std
     if (options.encoding != PlyEncoding::BinaryLittleEndian) mFile->fail("a PLY written in pieces is binary");
     checkColumns(*mFile, piece.vertexAttributes, piece.vertexCount(), "vertex", {"x", "y", "z"});
     checkColumns(*mFile, piece.faceAttributes, piece.triangleCount(), "face", {"vertex_indices"});
-    return plyHeader(*mFile, piece, options, std::size_t(vertices), std::size_t(faces));
+    return meshio_internal::plyHeader(*mFile, piece, options, std::size_t(vertices), std::size_t(faces));
+}
+
+std::string SharedMeshFile::vtpHead(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces,
+    const MeshFileOptions& options) const
+{
+    return meshio_internal::vtpHead(*mFile, piece, vertices, faces, options);
 }
 
 std::pair<std::size_t, std::size_t> plyRowBytes(const Mesh& mesh)

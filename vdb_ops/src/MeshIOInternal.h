@@ -6,6 +6,7 @@
 #include "isouq/MeshIO.h"
 
 #include <cstddef>
+#include <cstdint>
 #include <initializer_list>
 #include <string>
 #include <vector>
@@ -54,5 +55,9 @@ std::vector<std::string> headerComments(const AtomicFile& file, const Mesh& mesh
 
 void writePlyTo(AtomicFile& file, const Mesh& mesh, const PlyOptions& options);
 void writeVtpTo(AtomicFile& file, const Mesh& mesh, const MeshFileOptions& options); // VtpWriter.cc
+/// What writeVtpTo writes before the appended blocks, for a mesh of @a nv vertices and @a nf
+/// triangles with @a mesh's columns (checked against @a mesh's own counts).
+std::string vtpHead(const AtomicFile& file, const Mesh& mesh, std::uint64_t nv, std::uint64_t nf,
+    const MeshFileOptions& options);
 
 } // namespace isouq::meshio_internal

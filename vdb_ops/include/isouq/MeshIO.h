@@ -74,7 +74,7 @@ Mesh readPly(const std::string& path, PlyInfo* info = nullptr);
 /// @throw IoError naming the path and the reason.
 void checkWritable(const std::string& path);
 
-class SharedPlyFile;
+class SharedMeshFile;
 
 /// Several outputs that appear together or not at all (a mesh, its hidden-feature mesh and
 /// the summary): each is written to its temporary file when added, and commit() renames them
@@ -92,8 +92,8 @@ public:
     void addVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& options = {});
     /// @throw IoError as writeTextFileAtomic.
     void addText(const std::string& path, const std::string& text);
-    /// A file that several processes wrote (SharedPlyFile): renamed with the others.
-    void addShared(std::unique_ptr<SharedPlyFile> file);
+    /// A file that several processes wrote (SharedMeshFile): renamed with the others.
+    void addShared(std::unique_ptr<SharedMeshFile> file);
     /// Moves the files @a other staged (on another thread, say) into this batch, after its own.
     void add(OutputBatch&& other);
     /// @throw IoError naming the first path that could not be renamed.
@@ -108,28 +108,65 @@ namespace meshio_internal {
 class AtomicFile;
 }
 
-/// A binary PLY file that several processes write together (SPEC §10 "MPI"; docs/mpi.md): one
-/// process creates it under a temporary name next to @a path (removed when this object dies
-/// uncommitted, and by removeTemporaryFiles()) and writes header() at offset 0; every process
-/// writes its piece's plyPieceRows at offsets from a prefix sum (MPI-IO); OutputBatch::addShared
-/// renames it with the other outputs.
-class SharedPlyFile {
+/// A binary PLY or a .vtp file that several processes write together (SPEC §10 "MPI";
+/// docs/mpi.md): one process creates it under a temporary name next to @a path (removed when
+/// this object dies uncommitted, and by removeTemporaryFiles()) and writes its header at offset
+/// 0; every process writes its piece's rows at offsets from a prefix sum (MPI-IO):
+/// plyPieceRows, or VtpPieceLayout::rows; OutputBatch::addShared renames it with the other outputs.
+class SharedMeshFile {
 public:
     /// @throw IoError as writePly.
-    explicit SharedPlyFile(const std::string& path);
-    ~SharedPlyFile();
-    SharedPlyFile(const SharedPlyFile&) = delete;
-    SharedPlyFile& operator=(const SharedPlyFile&) = delete;
+    explicit SharedMeshFile(const std::string& path);
+    ~SharedMeshFile();
+    SharedMeshFile(const SharedMeshFile&) = delete;
+    SharedMeshFile& operator=(const SharedMeshFile&) = delete;
 
     const std::string& temporaryPath() const;
     /// The header of a mesh of @a vertices and @a faces with the columns of @a piece: the bytes
     /// writePly writes before the rows. @throw IoError as writePly.
-    std::string header(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, const PlyOptions& options) const;
+    std::string plyHeader(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, const PlyOptions& options) const;
+    /// The same for writeVtp: the XML up to the `_` that opens the appended data.
+    /// @throw IoError as writeVtp.
+    std::string vtpHead(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, const MeshFileOptions& options) const;
 
 private:
     friend class OutputBatch; // commits it with the run's other outputs
 
     std::unique_ptr<meshio_internal::AtomicFile> mFile;
+};
+
+/// Where a piece's rows sit in the whole mesh, for a file written in pieces: run k is the whole
+/// mesh's rows [first[k], last[k]), the piece's rows from local[k] on; runs in piece order.
+struct PieceRuns {
+    std::vector<std::uint64_t> first, last;
+    std::vector<std::size_t> local;
+    /// The whole mesh's row of the piece's row @a l (l below the piece's rows).
+    std::uint64_t globalOf(std::size_t l) const
+    {
+        std::size_t r = first.size() - 1;
+        while (local[r] > l) --r;
+        return first[r] + (l - local[r]);
+    }
+};
+
+/// The appended data of a .vtp written in pieces (docs/vtp-format.md): the file writeVtp writes
+/// for a mesh of @a vertices and @a faces with @a piece's columns, after SharedMeshFile::vtpHead's
+/// @a headBytes. Each block's rows are contiguous, so a piece's rows of each block go to one
+/// offset per run.
+class VtpPieceLayout {
+public:
+    using Sink = std::function<void(std::uint64_t offset, const char* data, std::size_t size)>;
+    VtpPieceLayout(const Mesh& piece, std::uint64_t vertices, std::uint64_t faces, std::uint64_t headBytes);
+    std::uint64_t fileBytes() const;
+    /// Every block's byte count and the closing tags: the part of one process, with the head.
+    void frame(const Sink& sink) const;
+    /// The values of @a piece's rows in every block, at their runs' offsets.
+    /// @throw IoError if a vertex index is not below the whole mesh's vertices.
+    void rows(const Mesh& piece, const PieceRuns& vertexRuns, const PieceRuns& faceRuns, const Sink& sink) const;
+
+private:
+    std::uint64_t mVertices, mFaces, mHeadBytes;
+    std::vector<std::uint64_t> mStarts; ///< each block's start after the `_`, then the end of the last
 };
 
 /// Bytes of one vertex row and of one face row in @a mesh's binary PLY.
