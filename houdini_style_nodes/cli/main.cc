@@ -310,7 +310,8 @@ int isouq_cli_main(int argc, char** argv)
     auto* skipMissing = mesh->add_flag("--skip-missing", sequence.skipMissing,
         "Sequences: mesh the frames that exist instead of refusing a range with missing ones");
     auto* frameJobs = mesh->add_option("--frame-jobs", sequence.frameJobs,
-        "Sequences: frames meshed at once, each with every thread")->check(CLI::Range(1, 64))->capture_default_str();
+        "Sequences: frames meshed at once, each with every thread; under mpirun, groups of ranks that "
+        "each mesh every N-th frame (N at most the ranks)")->check(CLI::Range(1, 64))->capture_default_str();
     mesh->footer(kMeshExamples);
 
     std::string demoDir = "isouq-demo";

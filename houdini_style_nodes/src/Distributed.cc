@@ -19,7 +19,7 @@ namespace {
 constexpr int kTag = 1;         // send and receive
 constexpr int kExchangeTag = 2; // exchange
 
-std::vector<Words> split(const Words& all, const std::vector<int>& counts, const std::vector<int>& displs)
+std::vector<Words> splitWords(const Words& all, const std::vector<int>& counts, const std::vector<int>& displs)
 {
     std::vector<Words> out(counts.size());
     for (std::size_t r = 0; r < counts.size(); ++r)
@@ -54,11 +54,18 @@ private:
 
 class MpiRanks final : public Ranks {
 public:
-    MpiRanks(MPI_Comm comm, std::function<bool()> interrupted) : mComm(comm), mInterrupted(std::move(interrupted))
+    MpiRanks(MPI_Comm comm, std::function<bool()> interrupted, bool owned = false)
+        : mComm(comm), mInterrupted(std::move(interrupted)), mOwned(owned)
     {
         MPI_Comm_rank(comm, &mRank);
         MPI_Comm_size(comm, &mSize);
     }
+    ~MpiRanks() override
+    {
+        if (mOwned) MPI_Comm_free(&mComm);
+    }
+    MpiRanks(const MpiRanks&) = delete;
+    MpiRanks& operator=(const MpiRanks&) = delete;
     int rank() const override { return mRank; }
     int size() const override { return mSize; }
     bool interrupted() const override { return mInterrupted(); }
@@ -71,7 +78,7 @@ public:
         const std::vector<int> displs = displacements(counts);
         Words all(std::size_t(displs.back() + counts.back()));
         MPI_Allgatherv(words.data(), n, MPI_UINT64_T, all.data(), counts.data(), displs.data(), MPI_UINT64_T, mComm);
-        return split(all, counts, displs);
+        return splitWords(all, counts, displs);
     }
 
     std::vector<Words> gather(const Words& words) const override
@@ -82,7 +89,7 @@ public:
         const std::vector<int> displs = displacements(counts);
         Words all(mRank == 0 ? std::size_t(displs.back() + counts.back()) : 0);
         MPI_Gatherv(words.data(), n, MPI_UINT64_T, all.data(), counts.data(), displs.data(), MPI_UINT64_T, 0, mComm);
-        return mRank == 0 ? split(all, counts, displs) : std::vector<Words>();
+        return mRank == 0 ? splitWords(all, counts, displs) : std::vector<Words>();
     }
 
     void exchangeInto(const std::vector<Words>& out, std::vector<Words>& in) const override
@@ -164,9 +171,17 @@ public:
         return std::make_unique<MpiSharedFile>(file);
     }
 
+    std::unique_ptr<Ranks> split(int color) const override
+    {
+        MPI_Comm group = MPI_COMM_NULL;
+        MPI_Comm_split(mComm, color, mRank, &group);
+        return std::make_unique<MpiRanks>(group, mInterrupted, /*owned=*/true);
+    }
+
 private:
     MPI_Comm mComm;
     std::function<bool()> mInterrupted;
+    bool mOwned;
     int mRank = 0, mSize = 1;
 };
 

@@ -150,6 +150,40 @@ FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, con
     return plan;
 }
 
+/// Frames [next, count) under MPI with @a jobs frame jobs (docs/mpi.md "Sequences"): the ranks
+/// split into @a jobs groups (rank r in group r mod jobs, whose rank 0 is rank g), and in each
+/// round group g meshes frame next + jobs k + g with @a mesh, which leaves its entry on the
+/// group's rank 0. A round ends on every rank together (a failure or Ctrl-C in any group is one
+/// on every rank); then rank 0 gathers the round's entries and warnings and @a report s them in
+/// frame order.
+void runFrameJobs(const Ranks& ranks, int jobs, std::size_t next, std::size_t count, std::vector<nlohmann::json>& entries,
+    std::vector<std::string>* warnings, const std::function<void(std::size_t, const Ranks&)>& mesh,
+    const std::function<void(std::size_t)>& report)
+{
+    const std::size_t g = std::size_t(ranks.rank() % jobs);
+    const std::unique_ptr<Ranks> group = ranks.split(int(g));
+    for (std::size_t round = next; round < count; round += std::size_t(jobs)) {
+        const std::size_t i = round + g, before = warnings ? warnings->size() : 0;
+        ranks.step([&] {
+            if (i < count) mesh(i, *group);
+        });
+        nlohmann::json mine = nlohmann::json::object();
+        if (ranks.rank() != 0 && group->rank() == 0 && i < count) {
+            mine = {{"entry", entries[i]}, {"warnings", nlohmann::json::array()}};
+            for (std::size_t w = before; warnings && w < warnings->size(); ++w) mine["warnings"].push_back((*warnings)[w]);
+        }
+        const std::vector<Words> all = ranks.gather(wordsOfText(mine.dump()));
+        for (std::size_t j = 1; j < all.size() && j < std::size_t(jobs) && round + j < count; ++j) {
+            const nlohmann::json theirs = nlohmann::json::parse(textOfWords(all[j]));
+            entries[round + j] = theirs["entry"];
+            if (warnings)
+                for (const nlohmann::json& w : theirs["warnings"]) warnings->push_back(w.get<std::string>());
+        }
+        if (ranks.rank() == 0)
+            for (std::size_t j = 0; j < std::size_t(jobs) && round + j < count; ++j) report(round + j);
+    }
+}
+
 } // namespace
 
 std::string FramePattern::path(int frame) const
@@ -216,8 +250,9 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
 {
     const auto start = std::chrono::steady_clock::now();
     const bool root = !ranks || ranks->rank() == 0;
-    if (ranks && request.frameJobs > 1)
-        throw InputError("--frame-jobs is for one process: under MPI the ranks mesh each frame together (docs/mpi.md)");
+    if (ranks && request.frameJobs > ranks->size())
+        throw InputError("--frame-jobs " + std::to_string(request.frameJobs) + " with " + std::to_string(ranks->size()) +
+            " MPI ranks: under MPI each frame job is a group of ranks, so at most one job a rank (docs/mpi.md)");
     // What rank 0 alone does on ranks (the checks and listings, reading back resumed frames, the
     // summary), agreed by every rank (Ranks::step): a failure there is an error on every rank.
     const auto onRoot = [&](const std::function<void()>& body) {
@@ -266,10 +301,16 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     std::mutex mutex;
     std::size_t done = 0;
     nlohmann::json method;
-    // Meshes frame i (or reads it back with --resume); returns its mesh summary's isovalue source,
+    // Meshes frame i on @a rk (every rank, or a frame job's group; or reads it back with
+    // --resume) into entries[i] on rk's rank 0; returns its mesh summary's isovalue source,
     // isovalue and grid (none for a kept frame).
-    auto runFrame = [&](std::size_t i, const MeshGraphRequest& with) {
+    auto runFrame = [&](std::size_t i, const MeshGraphRequest& with, const Ranks* rk) {
         const int f = frames[i];
+        const bool lead = !rk || rk->rank() == 0;
+        const auto onLead = [&](const std::function<void()>& body) {
+            if (rk) rk->step([&] { if (lead) body(); });
+            else body();
+        };
         MeshGraphRequest r = with;
         r.read["input"] = in->path(f);
         r.output = out->path(f);
@@ -280,7 +321,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         // cut short, is meshed again); it is kept if its header shows this run's settings.
         bool keep = false;
         if (request.resume) {
-            onRoot([&] {
+            onLead([&] {
                 PlyInfo info;
                 Mesh kept;
                 if (fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput))) try {
@@ -306,7 +347,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                 entry = frameEntry(f, r.read["input"], r.output, s);
                 entry["resumed"] = true;
             });
-            if (ranks) keep = ranks->broadcast({std::uint64_t(keep)}, 0)[0] != 0;
+            if (rk) keep = rk->broadcast({std::uint64_t(keep)}, 0)[0] != 0;
         }
         if (!keep) {
             GraphResult result;
@@ -316,7 +357,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                     "--resume keeps them)";
             };
             try {
-                result = runGraph(parseGraph(meshGraph(r)), interrupter, {}, ranks);
+                result = runGraph(parseGraph(meshGraph(r)), interrupter, {}, rk);
             } catch (const IoError& e) {
                 throw IoError(failed(e.what()));
             } catch (const InputError& e) {
@@ -324,7 +365,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
             }
             s = result.outputs.at(kMeshGraphSummary).at("summary"); // on ranks other than 0, no counts
             source = s.value("isovalue_source", std::string());
-            if (root) entry = frameEntry(f, r.read["input"], r.output, s);
+            if (lead) entry = frameEntry(f, r.read["input"], r.output, s);
             std::lock_guard<std::mutex> lock(mutex);
             if (warnings)
                 for (const std::string& w : result.warnings) warnings->push_back("frame " + std::to_string(f) + ": " + w);
@@ -333,15 +374,18 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
         {
             std::lock_guard<std::mutex> lock(mutex);
             entries[i] = entry;
-            if (onFrame && root) onFrame(++done, frames.size(), f, entry);
         }
         auto outcome = std::make_tuple(source, s.value("isovalue", 0.0), s.value("grid", std::string()));
-        if (ranks) { // rank 0's, which alone reads a resumed frame back
-            const nlohmann::json j = nlohmann::json::parse(textOfWords(ranks->broadcast(
+        if (rk) { // rank 0's, which alone reads a resumed frame back
+            const nlohmann::json j = nlohmann::json::parse(textOfWords(rk->broadcast(
                 wordsOfText(nlohmann::json::array({source, std::get<1>(outcome), std::get<2>(outcome)}).dump()), 0)));
             outcome = std::make_tuple(j[0].get<std::string>(), j[1].get<double>(), j[2].get<std::string>());
         }
         return outcome;
+    };
+    const auto report = [&](std::size_t i) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (onFrame && root) onFrame(++done, frames.size(), frames[i], entries[i]);
     };
 
     // One isovalue for every frame: given, or the default of the first frame that has data. One
@@ -351,8 +395,8 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     nlohmann::json isovalue = base.read.contains("isovalue") ? base.read["isovalue"] : nlohmann::json();
     bool findGrid = !base.read.contains("grid") && pathExtension(in->path(0)) == ".vdb";
     while ((isovalue.is_null() || findGrid) && next < frames.size()) {
-        const auto [source, k, grid] = runFrame(next, base);
-        ++next;
+        const auto [source, k, grid] = runFrame(next, base, ranks);
+        report(next++);
         if (findGrid && !grid.empty()) {
             base.read["grid"] = grid;
             findGrid = false;
@@ -369,13 +413,19 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                 ") for every frame; set it with --isovalue");
     }
 
-    // The rest, frameJobs at a time; each frame is independent and uses every thread.
+    // The rest, frameJobs at a time; each frame is independent and uses every thread (rank).
+    if (ranks && request.frameJobs > 1) {
+        runFrameJobs(*ranks, request.frameJobs, next, frames.size(), entries, warnings,
+            [&](std::size_t i, const Ranks& group) { runFrame(i, base, &group); }, report);
+        next = frames.size();
+    }
     std::atomic<std::size_t> cursor{next};
     std::exception_ptr failure;
     std::atomic<bool> failed{false};
     auto worker = [&] {
         for (std::size_t i; !failed && (i = cursor++) < frames.size();) try {
-                runFrame(i, base);
+                runFrame(i, base, ranks);
+                report(i);
             } catch (...) {
                 std::lock_guard<std::mutex> lock(mutex);
                 if (!failure) failure = std::current_exception();

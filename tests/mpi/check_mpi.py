@@ -366,8 +366,9 @@ def write_smoke_sequence(folder):
 def sequence(args):
     """A frame sequence under mpirun against one process (docs/mpi.md "Sequences"): each frame's
     PLY byte-identical, the same printed lines, the sequence summary equal plus each frame's
-    ranks block; then --resume after a lost frame, and the errors of a sequence (a frame cut
-    short, missing frames, --frame-jobs) as one error line and exit 2 from every rank."""
+    ranks block; with --frame-jobs (groups of ranks, each every N-th frame) too; then --resume
+    after a lost frame, and the errors of a sequence (a frame cut short, missing frames, more
+    frame jobs than ranks) as one error line and exit 2 from every rank."""
     work = os.path.join(args.work, f"sequence_np{args.np}")
     inputs = write_smoke_sequence(os.path.join(work, "cache"))
     dirs = {who: os.path.join(work, who) for who in ("one", "mpi")}
@@ -380,8 +381,13 @@ def sequence(args):
         return [args.cli, "mesh", inputs, "-o", os.path.join(dirs[who], "m_####.ply"), "--summary",
                 os.path.join(dirs[who], "s.json"), "-j", "1"] + list(extra)
 
-    def both(*extra):
-        one, many = run(command("one", *extra)), run(mpirun(args, args.np) + command("mpi", *extra))
+    # Frame jobs at 2 to 4 ranks: groups of one rank, of two and one, of two, one and one.
+    jobs = ["--frame-jobs", str(min(args.np, 3))] if args.np > 1 else []
+
+    def both(*extra, mpi_only=()):
+        # One process meshes the frames in order, and rank 0 reports frame jobs' frames in order.
+        one = run(command("one", *extra))
+        many = run(mpirun(args, args.np) + command("mpi", *extra, *mpi_only))
         if one.returncode != 0 or many.returncode != 0:
             sys.exit(f"exit {one.returncode} and {many.returncode}: {one.stderr}\n{many.stderr}")
         if many.stdout != one.stdout.replace(dirs["one"], dirs["mpi"]):
@@ -396,12 +402,16 @@ def sequence(args):
             s["sequence"].pop("output")
             for e in s["frames"]:
                 e.pop("output")
+        # Frames 1 and 2 set the grid and the isovalue on every rank; frame jobs mesh the others.
+        groups = int(mpi_only[1]) if mpi_only else 1
         for e in s2["frames"]:
             ranks = e.pop("ranks", None)
             if e.get("resumed"):
                 continue
-            if len(ranks) != args.np or sum(r["triangles"] for r in ranks) != e["triangles"]:
-                sys.exit(f"frame {e['frame']}: ranks block {ranks}")
+            k = e["frame"] - 3  # the frame's place among the frame jobs' frames
+            size = args.np if k < 0 else len(range(k % groups, args.np, groups))
+            if len(ranks) != size or sum(r["triangles"] for r in ranks) != e["triangles"]:
+                sys.exit(f"frame {e['frame']}: ranks block {ranks}, expected {size} ranks")
         if s1 != s2:
             sys.exit(f"sequence summaries differ:\n{s1}\n{s2}")
         return s2
@@ -409,10 +419,14 @@ def sequence(args):
     s = both()
     if [e["empty"] for e in s["frames"]] != [True, False, False, False] or s["totals"]["triangles"] == 0:
         sys.exit(f"frames: {s['frames']}")
-    for who in dirs:  # a lost frame, meshed again; the others kept
+    if jobs:
+        both(mpi_only=jobs)
+    for who in dirs:  # a lost frame, meshed again; the others kept (frame 4 read back by group 1)
         os.remove(os.path.join(dirs[who], "m_0003.ply"))
     first = s
-    s = both("--resume")  # the empty frame 1 does not set the isovalue: frame 2 does, as before
+    # The empty frame 1 does not set the isovalue: frame 2 does. With the grid given, the frames
+    # after it go to the frame jobs (a kept frame does not tell which grid the run meshes).
+    s = both("--resume", "--grid", "density", mpi_only=jobs)
     if [bool(e.get("resumed")) for e in s["frames"]] != [True, True, False, True] or \
             (s["isovalue"], s["totals"]["triangles"]) != (first["isovalue"], first["totals"]["triangles"]):
         sys.exit(f"--resume: {s}")
@@ -424,7 +438,13 @@ def sequence(args):
     open(frame3, "wb").write(head)  # cut short: grid 'density' ends past the end of the file
     out = os.path.join(work, "bad", "m_####.ply")
     cases = [([os.path.join(broken, "smoke_####.vdb")], ["m_0001.ply", "m_0002.ply"]),
-             ([inputs, "--frames", "1-6"], []), ([inputs, "--frame-jobs", "2"], [])]
+             ([inputs, "--frames", "1-6"], []), ([inputs, "--frame-jobs", str(args.np + 1)], [])]
+    broken4 = os.path.join(work, "broken4")
+    if jobs:  # frame 4 cut short, in the second frame job: one error line, frame 3 written
+        write_smoke_sequence(broken4)
+        open(os.path.join(broken4, "smoke_0004.vdb"), "wb").write(head)
+        cases.append(([os.path.join(broken4, "smoke_####.vdb"), "--grid", "density"] + jobs,
+                      ["m_0001.ply", "m_0002.ply", "m_0003.ply"]))
     for extra, kept in cases:
         for f in glob.glob(os.path.join(work, "bad", "*")) + glob.glob(os.path.join(work, "bad", ".isouq-*")):
             os.remove(f)
@@ -435,11 +455,13 @@ def sequence(args):
         left = sorted(os.listdir(os.path.join(work, "bad"))) if os.path.isdir(os.path.join(work, "bad")) else []
         if left != kept:
             sys.exit(f"{extra}: left {left}, expected {kept}")
-        if "--frame-jobs" not in extra:  # one process says the same
+        if "--frame-jobs" not in extra or extra[0].startswith(broken4):  # one process says the same
             one = run([args.cli, "mesh"] + extra + ["-o", out, "-j", "1"])
             if one.returncode != 2 or one.stderr.strip().splitlines()[-1] != lines[0]:
                 sys.exit(f"{extra}: one process says {one.stderr.strip()!r}, the ranks {lines[0]!r}")
         print(f"np {args.np}: {' '.join(os.path.basename(e) for e in extra)}: {lines[0]}")
+    for f in glob.glob(os.path.join(work, "bad", "*")):
+        os.remove(f)
     if args.np <= 2:  # Ctrl-C as srun forwards it, in the first of three frames of big_sphere
         frames = os.path.join(work, "big")
         os.makedirs(frames, exist_ok=True)
@@ -448,17 +470,21 @@ def sequence(args):
             if not os.path.lexists(link):
                 os.symlink(big_sphere(args.work), link)
         out = os.path.join(work, "bad", "big_####.ply")
-        p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", os.path.join(frames, "big_####.vdb"), "-o", out,
-                                                      "--summary", os.path.join(work, "bad", "s.json"), "-j", "1",
-                                                      "--hidden-features", "--no-hidden-filter", "--subdivisions", "12"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for pid in ranks_with_handlers(args, p):
-            os.kill(pid, signal.SIGINT)
-        got, err = p.communicate(timeout=300)
-        left = os.listdir(os.path.join(work, "bad"))
-        if p.returncode != 130 or "the frames finished so far are written" not in err or left:
-            sys.exit(f"SIGINT in a sequence: exit {p.returncode}, left {left}\n{got}\n{err}")
-        print(f"np {args.np}: SIGINT in a sequence's first frame: exit 130, nothing written")
+        # In the first frame; at 2 ranks also in the first round of two frame jobs (grid and
+        # isovalue given: no frame is meshed by every rank first).
+        for extra in [[]] + ([["--grid", "ls", "--isovalue", "0"] + jobs] if jobs else []):
+            p = subprocess.Popen(mpirun(args, args.np) + [args.cli, "mesh", os.path.join(frames, "big_####.vdb"), "-o",
+                                                          out, "--summary", os.path.join(work, "bad", "s.json"), "-j", "1",
+                                                          "--hidden-features", "--no-hidden-filter", "--subdivisions",
+                                                          "12"] + extra,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            for pid in ranks_with_handlers(args, p):
+                os.kill(pid, signal.SIGINT)
+            got, err = p.communicate(timeout=300)
+            left = os.listdir(os.path.join(work, "bad"))
+            if p.returncode != 130 or "the frames finished so far are written" not in err or left:
+                sys.exit(f"SIGINT in a sequence {extra}: exit {p.returncode}, left {left}\n{got}\n{err}")
+            print(f"np {args.np}: SIGINT in a sequence's first frame {' '.join(extra)}: exit 130, nothing written")
     print(f"np {args.np}: sequence: byte-identical PLY files, equal summaries, --resume")
 
 

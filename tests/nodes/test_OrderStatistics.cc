@@ -32,6 +32,7 @@ public:
         return nullptr;
     }
     bool interrupted() const override { return false; }
+    std::unique_ptr<isouq::nodes::Ranks> split(int) const override { return std::make_unique<OneRank>(); }
 };
 
 } // namespace

@@ -45,6 +45,9 @@ public:
     virtual std::unique_ptr<SharedFile> openShared(const std::string& path, std::uint64_t bytes, std::string& why) const = 0;
     /// Whether a signal arrived on this rank.
     virtual bool interrupted() const = 0;
+    /// The ranks of @a color among these, in rank order (collective: a group of ranks that
+    /// runs graphs of its own, a sequence's frame job).
+    virtual std::unique_ptr<Ranks> split(int color) const = 0;
 
     /// Runs @a body, then agrees: when it failed on any rank, every rank throws at the same
     /// point, InterruptedError if a rank was interrupted, else InputError with the message of

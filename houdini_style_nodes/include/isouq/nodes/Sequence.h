@@ -41,7 +41,7 @@ struct SequenceRequest {
     std::string frames;       ///< --frames ("" for every frame on disk, first to last)
     bool resume = false;      ///< skip frames whose outputs exist (outputs appear atomically)
     bool skipMissing = false; ///< go on without missing frames instead of refusing the run
-    int frameJobs = 1;        ///< frames meshed at once (each with every thread)
+    int frameJobs = 1;        ///< frames meshed at once (each with every thread; on ranks, a group of ranks)
 };
 
 /// What the loop reports after each frame: its index in the run, the run's length, the frame.
@@ -50,8 +50,9 @@ using FrameCallback = std::function<void(std::size_t done, std::size_t total, in
 /// Meshes every frame; returns the sequence summary (`frames`, `totals`, `isovalue`, ...).
 /// Frames are committed one by one: an interruption leaves the finished ones. On @a ranks
 /// (docs/mpi.md "Sequences") every rank meshes each frame in turn, as `isouq mesh` does one
-/// input; rank 0 checks the run, lists the frames, calls @a onFrame, gets the warnings and the
-/// summary (the other ranks an empty object); frameJobs must be 1.
+/// input, or with frameJobs > 1 (at most one a rank) each group of ranks every frameJobs-th
+/// frame; rank 0 checks the run, lists the frames, calls @a onFrame in frame order, gets the
+/// warnings and the summary (the other ranks an empty object).
 /// @throw InputError (missing frames listed, bad patterns), IoError, InterruptedError.
 nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullInterrupter* interrupter,
     const FrameCallback& onFrame = {}, std::vector<std::string>* warnings = nullptr, const Ranks* ranks = nullptr);
