@@ -116,7 +116,8 @@ FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, con
     for (int f : range) (fs::is_regular_file(in.path(f)) ? frames : missing).push_back(f);
     if (!missing.empty() && (!request.skipMissing || frames.empty()))
         throw InputError("'" + inputPattern + "': frame" + (missing.size() > 1 ? "s " : " ") + rangesText(missing) +
-            " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) + " missing (" +
+            " of " + std::to_string(range.front()) + "-" + std::to_string(range.back()) +
+            (range.size() > 1 && range[1] - range[0] > 1 ? ":" + std::to_string(range[1] - range[0]) : "") + " missing (" +
             std::to_string(missing.size()) + " of " + std::to_string(range.size()) + ")" +
             (frames.empty() ? "" : "; --skip-missing meshes the others"));
 
