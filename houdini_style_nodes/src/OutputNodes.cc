@@ -36,8 +36,6 @@ void cookWritePly(CookContext& ctx)
     if (ctx.parms.getString("format") == "ascii") options.encoding = PlyEncoding::Ascii;
     if (ctx.ranks) { // every rank writes its rows into the one file (docs/mpi.md)
         if (!mesh->piece) throw std::invalid_argument("input 'mesh' is not a mesh made by pieces");
-        if (options.encoding != PlyEncoding::BinaryLittleEndian)
-            throw std::invalid_argument("parameter 'format': a PLY written by MPI ranks is binary");
         const Ranks* ranks = ctx.ranks;
         ctx.writes->push_back({path, [mesh, path, options, ranks](OutputBatch& batch) {
             stagePlyOnRanks(*ranks, mesh->mesh, *mesh->piece, path, options, batch);

@@ -55,7 +55,8 @@ MeshTopologyStats topologyOnRanks(const Ranks& ranks, const Mesh& piece, const M
 void addRanksBlock(const Ranks& ranks, const MeshData& mesh, const nlohmann::json& timings, nlohmann::json& summary);
 
 /// writePly of the whole mesh by every rank: rank 0 creates the temporary file and writes the
-/// header, every rank its rows at the offsets of its piece; rank 0's @a batch commits it.
+/// header, every rank its rows at the offsets of its piece (an ascii PLY's from the byte counts
+/// of every rank's lines); rank 0's @a batch commits it.
 void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
     const PlyOptions& options, OutputBatch& batch);
 

@@ -324,29 +324,37 @@ void appendAsciiRow(std::string& out, const AttributeTable& table, std::size_t r
         }, a.data);
 }
 
-/// One line per vertex and per face; floats as their shortest round-trip text.
+/// Lines [begin, end) of the vertices (or with @a faces the faces) appended to @a out: one line
+/// a row, floats as their shortest round-trip text; vertex indices must be below @a nv.
+template <typename Fail>
+void appendAsciiRows(std::string& out, const Mesh& mesh, bool faces, std::size_t begin, std::size_t end, std::size_t nv,
+    const Fail& fail)
+{
+    for (std::size_t r = begin; r < end; ++r) {
+        if (faces) {
+            checkTriangle(mesh, r, nv, fail);
+            const openvdb::Vec3I& t = mesh.triangles[r];
+            out += "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' + std::to_string(t[2]);
+        } else {
+            const openvdb::Vec3s& p = mesh.positions[r];
+            out += formatFloat(p[0]) + ' ' + formatFloat(p[1]) + ' ' + formatFloat(p[2]);
+        }
+        appendAsciiRow(out, faces ? mesh.faceAttributes : mesh.vertexAttributes, r);
+        out += '\n';
+    }
+}
+
 void writeAsciiBody(AtomicFile& file, const Mesh& mesh)
 {
     std::string out;
-    auto flush = [&](bool always) {
-        if (always || out.size() >= kChunkBytes) file.write(out), out.clear();
-    };
-    for (std::size_t v = 0; v < mesh.vertexCount(); ++v) {
-        const openvdb::Vec3s& p = mesh.positions[v];
-        out += formatFloat(p[0]) + ' ' + formatFloat(p[1]) + ' ' + formatFloat(p[2]);
-        appendAsciiRow(out, mesh.vertexAttributes, v);
-        out += '\n';
-        flush(false);
+    for (const bool faces : {false, true}) {
+        const std::size_t rows = faces ? mesh.triangleCount() : mesh.vertexCount();
+        for (std::size_t begin = 0; begin < rows; begin += kAsciiChunkRows) {
+            appendAsciiRows(out, mesh, faces, begin, std::min(rows, begin + kAsciiChunkRows), mesh.vertexCount(),
+                [&](const std::string& reason) { file.fail(reason); });
+            file.write(out), out.clear();
+        }
     }
-    for (std::size_t f = 0; f < mesh.triangleCount(); ++f) {
-        checkTriangle(mesh, f, mesh.vertexCount(), [&](const std::string& reason) { file.fail(reason); });
-        const openvdb::Vec3I& t = mesh.triangles[f];
-        out += "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' + std::to_string(t[2]);
-        appendAsciiRow(out, mesh.faceAttributes, f);
-        out += '\n';
-        flush(false);
-    }
-    flush(true);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -829,7 +837,6 @@ std::string SharedMeshFile::plyHeader(const Mesh& piece, std::uint64_t vertices,
 {
     using namespace meshio_internal;
     if (vertices > std::uint64_t(INT32_MAX)) mFile->fail("more vertices than PLY int indices hold");
-    if (options.encoding != PlyEncoding::BinaryLittleEndian) mFile->fail("a PLY written in pieces is binary");
     checkColumns(*mFile, piece.vertexAttributes, piece.vertexCount(), "vertex", {"x", "y", "z"});
     checkColumns(*mFile, piece.faceAttributes, piece.triangleCount(), "face", {"vertex_indices"});
     return meshio_internal::plyHeader(*mFile, piece, options, std::size_t(vertices), std::size_t(faces));
@@ -850,6 +857,12 @@ void plyPieceRows(const Mesh& piece, std::uint64_t vertices,
     const std::function<void(bool faces, const char* data, std::size_t size)>& sink)
 {
     meshio_internal::binaryRows(piece, std::size_t(vertices), sink,
+        [](const std::string& reason) { throw IoError("cannot write a PLY piece: " + reason); });
+}
+
+void plyAsciiRows(const Mesh& piece, bool faces, std::size_t begin, std::size_t end, std::uint64_t vertices, std::string& out)
+{
+    meshio_internal::appendAsciiRows(out, piece, faces, begin, end, std::size_t(vertices),
         [](const std::string& reason) { throw IoError("cannot write a PLY piece: " + reason); });
 }
 

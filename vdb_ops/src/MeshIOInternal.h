@@ -36,8 +36,9 @@ private:
     int mSlot = -1; ///< its slot for removeTemporaryFiles()
 };
 
-/// Bytes per buffered write of the mesh bodies.
+/// Bytes per buffered write of the mesh bodies; rows per write of an ascii body.
 constexpr std::size_t kChunkBytes = std::size_t(1) << 22;
+constexpr std::size_t kAsciiChunkRows = std::size_t(1) << 15;
 
 /// Same text as printf("%.17g") in the C locale: reads back to the same double.
 std::string formatDouble(double v);

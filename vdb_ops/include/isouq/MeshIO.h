@@ -112,7 +112,8 @@ class AtomicFile;
 /// docs/mpi.md): one process creates it under a temporary name next to @a path (removed when
 /// this object dies uncommitted, and by removeTemporaryFiles()) and writes its header at offset
 /// 0; every process writes its piece's rows at offsets from a prefix sum (MPI-IO):
-/// plyPieceRows, or VtpPieceLayout::rows; OutputBatch::addShared renames it with the other outputs.
+/// plyPieceRows or plyAsciiRows, or VtpPieceLayout::rows; OutputBatch::addShared renames it
+/// with the other outputs.
 class SharedMeshFile {
 public:
     /// @throw IoError as writePly.
@@ -177,6 +178,11 @@ std::pair<std::size_t, std::size_t> plyRowBytes(const Mesh& mesh);
 /// @throw IoError if a vertex index is not below @a vertices (the whole mesh's count).
 void plyPieceRows(const Mesh& piece, std::uint64_t vertices,
     const std::function<void(bool faces, const char* data, std::size_t size)>& sink);
+
+/// The ascii lines of @a piece's vertex rows [begin, end) (or with @a faces its face rows)
+/// exactly as writePly writes them, appended to @a out.
+/// @throw IoError if a vertex index is not below @a vertices (the whole mesh's count).
+void plyAsciiRows(const Mesh& piece, bool faces, std::size_t begin, std::size_t end, std::uint64_t vertices, std::string& out);
 
 /// Removes every temporary file this process is writing (async-signal-safe: for a handler of
 /// a second Ctrl-C, SIGTERM or SIGHUP that must end the process at once).
