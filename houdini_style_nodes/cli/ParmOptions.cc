@@ -2,6 +2,7 @@
 #include "ParmOptions.h"
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <stdexcept>
 
@@ -10,6 +11,20 @@ namespace {
 
 using nodes::ParmSpec;
 using nodes::ParmType;
+
+/// CLI11 reads an integer too large for a long long as the largest one: such a number is
+/// refused as the user wrote it (each of a list's).
+const CLI::Validator kLongLong(
+    [](std::string& text) {
+        long long v = 0;
+        for (const std::string& item : CLI::detail::split(text, ',')) {
+            const char* end = item.data() + item.size();
+            const auto [at, error] = std::from_chars(item.data() + (!item.empty() && item[0] == '+'), end, v);
+            if (error == std::errc::result_out_of_range) return item + " is beyond the range of a 64-bit integer";
+        }
+        return std::string();
+    },
+    "");
 
 /// Re-checks the value with the graph's rules, so a flag and a graph reject the same values, but
 /// for a path's ending: `-o` names a .ply or a .vtp, and the graph builder picks the writer by it
@@ -38,7 +53,7 @@ CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
     // CLI11 reads "" as 0: a number option needs a number.
     case ParmType::Int:
         return cmd.add_option_function<long long>(names, [&values, spec](const long long& v) { store(values, spec, v); },
-            spec.tooltip)->check(CLI::Number);
+            spec.tooltip)->check(CLI::Number)->check(kLongLong);
     case ParmType::Float:
         return cmd.add_option_function<double>(names, [&values, spec](const double& v) { store(values, spec, v); },
             spec.tooltip)->check(CLI::Number);
@@ -62,7 +77,8 @@ CLI::Option* addOne(CLI::App& cmd, const ParmSpec& spec, nlohmann::json& values)
                       names, [&values, spec](const std::vector<long long>& v) { store(values, spec, v); }, spec.tooltip)
             ->delimiter(',')
             ->expected(3)
-            ->check(CLI::Number);
+            ->check(CLI::Number)
+            ->check(kLongLong);
     }
     throw std::logic_error("unknown parameter type");
 }

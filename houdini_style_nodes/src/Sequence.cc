@@ -101,8 +101,6 @@ FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, con
     std::vector<int>& range = plan.range;
     std::vector<int>& frames = plan.frames;
     std::vector<int>& missing = plan.missing;
-    if (!request.frame.summaryPath.empty()) checkWritable(request.frame.summaryPath);
-
     // The frames, and the missing ones listed before any work.
     const std::set<int> onDisk = framesOnDisk(in);
     if (!request.frames.empty()) range = parseFrameRange(request.frames);
@@ -141,13 +139,16 @@ FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, con
     }
     if (!request.frame.summaryPath.empty()) addOutput("--summary", request.frame.summaryPath);
 
-    // Caches go to folders of their own: make the output folders, as Blender and Houdini do.
-    for (const FramePattern* p : {&out, hidden ? &*hidden : nullptr})
-        if (p && !fs::path(p->path(0)).parent_path().empty()) fs::create_directories(fs::path(p->path(0)).parent_path());
-    // Every frame's output checked as one output is, before any frame is meshed: a FIFO there
-    // would block --resume's read, a folder fail that frame after the frames before it.
-    for (const auto& [resolved, path] : outputs)
-        if (path != request.frame.summaryPath) checkWritable(path);
+    // Caches go to folders of their own: make the output folders (the summary's too), as
+    // Blender and Houdini do.
+    for (const std::string& path : {out.path(0), hidden ? hidden->path(0) : "", request.frame.summaryPath}) {
+        std::error_code error;
+        if (const fs::path folder = fs::path(path).parent_path(); !folder.empty() && !fs::create_directories(folder, error) && error)
+            throw IoError("cannot write " + path + ": cannot make its folder " + folder.string() + ": " + error.message());
+    }
+    // Every output checked as one output is, before any frame is meshed: a FIFO there would
+    // block --resume's read, a folder fail that frame after the frames before it.
+    for (const auto& [resolved, path] : outputs) checkWritable(path);
     return plan;
 }
 

@@ -110,6 +110,15 @@ TEST_CASE("CLI hostile: wrong successes are errors now", "[cli][hostile]")
         requireRefused(runCli("mesh field:sphere --isovalue nan -q -o out.ply", dir), "finite number, got nan", {out});
         requireRefused(runCli("mesh field:sphere --isovalue 1e40 -q -o out.ply", dir), "1e+40 is beyond float32", {out});
     }
+    SECTION("an integer beyond 64 bits is named as given, not as the largest long long")
+    {
+        requireRefused(runCli("mesh field:sphere --resolution 99999999999999999999 -q -o out.ply", dir),
+            "--resolution: 99999999999999999999 is beyond the range of a 64-bit integer", {out});
+        requireRefused(runCli("mesh " + quote(std::string(ISOUQ_DATA_DIR) + "/bucky_32x32x32_uint8.raw") +
+                                  " --dims 18446744073709551616,1,1 -q -o out.ply",
+                           dir),
+            "--dims: 18446744073709551616 is beyond", {out});
+    }
     SECTION("a raw scan with no cell")
     {
         writeFile(dir / "flat_2x2x1_uint8.raw", std::string("\1\2\3\4", 4));

@@ -45,9 +45,10 @@ def run(cli, *args, cwd, check=True):
 
 def test_every_frame_meshed_closed_with_one_isovalue(isouq_cli, tmp_path):
     fog_cache(tmp_path / "cache", absent=(5,))
+    # The output folders are made, the summary's too.
     run(isouq_cli, "cache/fluid_data_####.vdb", "--grid", "density", "-k", "0.05", "-o", "out/smoke.####.ply",
-        "--summary", "seq.json", cwd=tmp_path)
-    summary = json.loads((tmp_path / "seq.json").read_text())
+        "--summary", "runs/a/seq.json", cwd=tmp_path)
+    summary = json.loads((tmp_path / "runs/a/seq.json").read_text())
     assert [e["frame"] for e in summary["frames"]] == [1, 2, 3, 4, 5, 6]
     assert summary["totals"]["empty"] == 2 and summary["isovalue"] == 0.05
     for e in summary["frames"]:
@@ -115,6 +116,12 @@ def test_without_grid_every_frame_meshes_the_first_frames_grid(isouq_cli, tmp_pa
 
 def test_missing_frames_are_listed_before_any_work(isouq_cli, tmp_path):
     fog_cache(tmp_path / "cache", frames=[1, 2, 3, 6], empty=())
+    (tmp_path / "file").write_text("")  # a folder that cannot be made: one line, nothing written
+    proc = run(isouq_cli, "cache/fluid_data_####.vdb", "--skip-missing", "-k", "0.1", "-o", "made/m.####.ply",
+               "--summary", "file/s.json", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith(
+        "isouq: error: cannot write file/s.json: cannot make its folder file: Not a directory"), proc.stderr
+    assert not any((tmp_path / "made").iterdir())
     proc = run(isouq_cli, "cache/fluid_data_####.vdb", "-k", "0.1", "-o", "out/m.####.ply", cwd=tmp_path, check=False)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
