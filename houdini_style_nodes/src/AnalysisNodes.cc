@@ -120,7 +120,7 @@ void cookColorMap(CookContext& ctx)
 {
     const ParmValues& p = ctx.parms;
     const std::string measure = p.getString("measure");
-    auto out = std::make_shared<MeshData>(inputMesh(ctx));
+    auto out = ctx.takeMesh("mesh");
     const std::vector<float>& values = floatColumn(*out, measure, " (mesh without linear_only?)");
     const bool given = p.isSet("range");
     double lo = 0.0, hi = 0.0;
