@@ -7,7 +7,7 @@ packages=(
   build-essential cmake ccache git
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libopenexr-dev libblosc-dev
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
-  libnifti2-dev libteem-dev libtiff-dev libgdcm-dev
+  libnifti2-dev libteem-dev libtiff-dev libgdcm-dev libexpat1-dev
   libopenmpi-dev openmpi-bin
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio

@@ -327,7 +327,7 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
                 PlyInfo info;
                 Mesh kept;
                 if (fs::exists(r.output) && (r.hiddenOutput.empty() || fs::exists(r.hiddenOutput))) try {
-                        kept = readPly(r.output, &info);
+                        kept = pathExtension(r.output) == ".vtp" ? readVtp(r.output, &info) : readPly(r.output, &info);
                     } catch (const IoError& e) {
                         info = PlyInfo();
                         std::lock_guard<std::mutex> lock(mutex);

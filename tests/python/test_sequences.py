@@ -155,6 +155,53 @@ def test_resume_keeps_finished_frames_and_frame_jobs_change_nothing(isouq_cli, t
         assert a["err_est"] == r["err_est"]
 
 
+def test_resume_reads_vtp_frames_back_also_as_vtk_writes_them(isouq_cli, tmp_path):
+    """--resume on a .vtp cache reads the kept frames back (readVtp): one of them rewritten by
+    VTK's own vtkXMLPolyDataWriter (raw appended, uncompressed), which puts field data, the
+    points and the cells in its own order, with its own array attributes."""
+    vtk_xml = pytest.importorskip("vtkmodules.vtkIOXML")
+    fog_cache(tmp_path / "cache")
+    args = ["cache/fluid_data_####.vdb", "-k", "0.05", "-o", "v/m.####.vtp"]
+    run(isouq_cli, *args, "--summary", "a.json", cwd=tmp_path)
+    ours = tmp_path / "v/m.0002.vtp"
+    reader = vtk_xml.vtkXMLPolyDataReader()
+    reader.SetFileName(str(ours))
+    reader.Update()
+    writer = vtk_xml.vtkXMLPolyDataWriter()
+    writer.SetInputData(reader.GetOutput())
+    writer.SetFileName(str(ours))
+    writer.SetDataModeToAppended()
+    writer.EncodeAppendedDataOff()
+    writer.SetCompressorTypeToNone()
+    writer.SetHeaderTypeToUInt64()
+    assert writer.Write() == 1
+    rewritten = ours.read_bytes()
+    assert b"RangeMin" in rewritten  # VTK's writer, not ours
+    (tmp_path / "v/m.0003.vtp").unlink()
+
+    def resume(*extra):  # without --quiet: the notes say which frames are meshed again, and why
+        proc = subprocess.run([isouq_cli, "mesh", *args, "--resume", *extra], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stderr
+
+    assert "meshed again" not in resume("--summary", "r.json")
+    assert ours.read_bytes() == rewritten  # kept, not written again
+    first, resumed = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "r.json"))
+    assert [bool(e.get("resumed")) for e in resumed["frames"]] == [True, True, False, True, True, True]
+    assert resumed["isovalue"] == pytest.approx(first["isovalue"]) and resumed["method"] == first["method"]
+    for a, r in zip(first["frames"], resumed["frames"]):
+        assert (a["vertices"], a["triangles"], a["components"], a["boundary_edges"]) == \
+            (r["vertices"], r["triangles"], r["components"], r["boundary_edges"])
+        assert a["err_est"] == r["err_est"]
+    # A kept frame that is not VTK XML (cut short) is meshed again, with a note saying why.
+    cut = tmp_path / "v/m.0005.vtp"
+    cut.write_bytes(cut.read_bytes()[:len(cut.read_bytes()) // 2])
+    notes = resume()
+    assert "isouq: frame 5: meshed again, as cannot read v/m.0005.vtp: truncated data" in notes, notes
+    assert notes.count("meshed again") == 1, notes
+
+
 def test_resume_after_an_empty_first_frame_keeps_the_runs_isovalue(isouq_cli, tmp_path):
     """An empty first frame records the isovalue it was meshed at (0, an empty grid's) in its
     PLY; --resume took that for the run's and meshed every other frame again at 0 (no surface

@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cinttypes>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
@@ -692,4 +693,96 @@ TEST_CASE("MeshIO: a failed .vtp write keeps the target and leaves no temporary"
     }
     CHECK(readBytes(dir / "t.vtp").rfind("<?xml", 0) == 0);
     CHECK(dir.list() == std::vector<std::string>{"t.vtp"});
+}
+
+TEST_CASE("MeshIO: readVtp reads back every column, the field data and the triangles", "[io][vtp]")
+{
+    const std::size_t nv = GENERATE(0, 7, 3000);
+    const Mesh m = fullMesh(nv, nv == 0 ? 0 : 2 * nv, 17);
+    isouq::MeshFileOptions options;
+    options.version = "0.1.0";
+    options.isovalue = -0.001f;
+    options.method = "weno";
+    options.comments = {"a <comment> & \"quotes\"", "isouq geometry nifti sform"};
+    TempDir dir;
+    isouq::writeVtp(m, dir / "m.vtp", options);
+    isouq::PlyInfo info;
+    const Mesh r = isouq::readVtp(dir / "m.vtp", &info);
+    CHECK(sameBits(r.positions, m.positions));
+    CHECK(sameBits(r.triangles, m.triangles));
+    CHECK(sameColumns(r.vertexAttributes, m.vertexAttributes));
+    CHECK(sameColumns(r.faceAttributes, m.faceAttributes));
+    CHECK(std::memcmp(r.indexToWorld.data(), m.indexToWorld.data(), sizeof(m.indexToWorld)) == 0);
+    CHECK(info.format == "vtp");
+    CHECK(info.version == "0.1.0");
+    REQUIRE(info.isovalue);
+    CHECK(*info.isovalue == -0.001f);
+    CHECK(info.method == "weno");
+    CHECK(info.hasIndexToWorld);
+    CHECK(info.comments == options.comments);
+}
+
+TEST_CASE("MeshIO: readVtp refuses what it cannot read with one IoError, never a crash", "[io][vtp]")
+{
+    TempDir dir;
+    const Mesh m = fullMesh(50, 100, 3);
+    isouq::writeVtp(m, dir / "m.vtp");
+    const std::string good = readBytes(dir / "m.vtp");
+    const std::size_t underscore = good.find("   _") + 3;
+    const auto outcome = [&](const std::string& bytes) {
+        writeBytes(dir / "x.vtp", bytes);
+        try {
+            isouq::readVtp(dir / "x.vtp");
+            return std::string("ok");
+        } catch (const IoError& e) {
+            return std::string(e.what()).substr(std::strlen("cannot read ") + (dir / "x.vtp").size() + 2);
+        } catch (const std::exception& e) {
+            return std::string("other: ") + e.what();
+        }
+    };
+    const auto replaced = [&](const std::string& from, const std::string& to) {
+        std::string s = good;
+        const std::size_t at = s.find(from);
+        REQUIRE(at != std::string::npos);
+        return s.replace(at, from.size(), to);
+    };
+    CHECK(outcome(good) == "ok");
+    CHECK(outcome(good.substr(0, underscore + 100)) == "truncated data (an array ends past the end of the file)");
+    CHECK(outcome(good.substr(0, 200)).rfind("not VTK XML (", 0) == 0);
+    CHECK(outcome("ply\nformat ascii 1.0\nend_header\n").rfind("not VTK XML (", 0) == 0);
+    CHECK(outcome("") .rfind("not VTK XML (", 0) == 0);
+    CHECK(outcome(replaced("NumberOfPoints=\"50\"", "NumberOfPoints=\"99999999999999\"")).rfind("array '", 0) == 0);
+    CHECK(outcome(replaced("NumberOfPoints=\"50\"", "NumberOfPoints=\"-5\"")) == "Piece has a malformed count '-5'");
+    CHECK(outcome(replaced("NumberOfVerts=\"0\"", "NumberOfVerts=\"2\"")) ==
+          "vertices, lines or strips; only triangles (Polys) are read");
+    CHECK(outcome(replaced("encoding=\"raw\"", "encoding=\"base64\"")) == "appended data in base64; only raw is read");
+    CHECK(outcome(replaced("header_type=\"UInt64\"", "header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\"")) ==
+          "compressed data (vtkZLibDataCompressor); write it uncompressed");
+    CHECK(outcome(replaced("byte_order=\"LittleEndian\"", "byte_order=\"BigEndian\"")) ==
+          "byte order 'BigEndian'; only LittleEndian is read");
+    CHECK(outcome(replaced("type=\"PolyData\"", "type=\"UnstructuredGrid\"")) ==
+          "not VTK XML PolyData (VTKFile type 'UnstructuredGrid')");
+    // A block whose size word disagrees with its count; an offset past the end.
+    std::string lying = good;
+    lying[underscore + 1] = char(lying[underscore + 1] + 1);
+    CHECK(outcome(lying).find("holds") != std::string::npos);
+    CHECK(outcome(replaced("offset=\"0\"", "offset=\"18446744073709551615\"")) ==
+          "truncated data (an array ends past the end of the file)");
+    // A triangle's index past the points, and a polygon that is not a triangle.
+    std::string far = good;
+    const std::size_t conn = far.rfind("connectivity");
+    std::uint64_t connOffset = 0;
+    std::sscanf(far.c_str() + far.find("offset=\"", conn) + 8, "%" SCNu64, &connOffset);
+    const std::int64_t big = 50;
+    std::memcpy(far.data() + underscore + 1 + connOffset + 8, &big, 8);
+    CHECK(outcome(far) == "triangle 0 has a vertex index out of range");
+    std::string quad = good;
+    std::uint64_t endsOffset = 0;
+    std::sscanf(quad.c_str() + quad.find("offset=\"", quad.rfind("Name=\"offsets\"")) + 8, "%" SCNu64, &endsOffset);
+    const std::int64_t four = 4;
+    std::memcpy(quad.data() + underscore + 1 + endsOffset + 8, &four, 8);
+    CHECK(outcome(quad) == "polygon 0 is not a triangle");
+    // Not a regular file.
+    CHECK(ioErrorOf([&] { isouq::readVtp(dir.path.string()); }).find("not a regular file") != std::string::npos);
+    CHECK(ioErrorOf([&] { isouq::readVtp(dir / "missing.vtp"); }).find("No such file or directory") != std::string::npos);
 }

@@ -69,6 +69,14 @@ void writeVtp(const Mesh& mesh, const std::string& path, const MeshFileOptions& 
 /// a vertex index out of range.
 Mesh readPly(const std::string& path, PlyInfo* info = nullptr);
 
+/// Reads a VTK XML PolyData file (docs/vtp-format.md "Reading"): what writeVtp writes, or any
+/// .vtp of one Piece of triangles, little-endian and uncompressed, its arrays raw appended (as
+/// vtkXMLPolyDataWriter writes with EncodeAppendedData off) or ascii. Points become positions,
+/// Polys the triangles, scalar point and cell arrays columns typed as readPly types them;
+/// writeVtp's field data fills @a info (format "vtp") and the mesh's index_to_world.
+/// @throw IoError if the file is missing, not such a file, truncated, or holds other cells.
+Mesh readVtp(const std::string& path, PlyInfo* info = nullptr);
+
 /// Fails early, before any heavy work, if @a path could not be written atomically: creates
 /// and removes a temporary file next to it.
 /// @throw IoError naming the path and the reason.
