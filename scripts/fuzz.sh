@@ -10,7 +10,7 @@ root=$PWD
 seconds=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(fuzz_raw fuzz_vdb fuzz_formula fuzz_graph fuzz_ply fuzz_nifti fuzz_nrrd fuzz_tiff fuzz_dicom)
+[ ${#targets[@]} -gt 0 ] || targets=(fuzz_raw fuzz_vdb fuzz_formula fuzz_graph fuzz_ply fuzz_vtp fuzz_nifti fuzz_nrrd fuzz_tiff fuzz_dicom)
 data=${ISOUQ_DATA_DIR:-$root/../shared/data}
 build=${ISOUQ_FUZZ_BUILD:-$root/build-fuzz}
 export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$(dirname "$root")}
@@ -55,9 +55,26 @@ seed() { # TARGET: fills $work/corpus/TARGET
     ASAN_OPTIONS=detect_leaks=0 "$cli" mesh field:sphere --resolution 6 -o "$c/sphere.ply" >/dev/null 2>&1 || true
     ASAN_OPTIONS=detect_leaks=0 "$cli" mesh field:teardrop --resolution 8 --hidden-features \
       --hidden-out "$c/teardrop_hidden.ply" -o "$c/teardrop.ply" >/dev/null 2>&1 || true ;;
+  fuzz_vtp) # isouq's own .vtp files, and VTK's writer's (ascii and raw appended) where ParaView is installed
+    local cli=$build/houdini_style_nodes/isouq
+    ASAN_OPTIONS=detect_leaks=0 "$cli" mesh field:sphere --resolution 6 -o "$c/sphere.vtp" >/dev/null 2>&1 || true
+    ASAN_OPTIONS=detect_leaks=0 "$cli" mesh field:teardrop --resolution 8 --hidden-features \
+      --hidden-out "$c/teardrop_hidden.vtp" -o "$c/teardrop.vtp" >/dev/null 2>&1 || true
+    /usr/bin/python3 - "$c" <<'PY' 2>/dev/null || true
+import sys
+from vtkmodules.vtkIOXML import vtkXMLPolyDataReader, vtkXMLPolyDataWriter
+for mode in ("ascii", "raw"):
+    r = vtkXMLPolyDataReader(); r.SetFileName(sys.argv[1] + "/sphere.vtp"); r.Update()
+    w = vtkXMLPolyDataWriter(); w.SetInputData(r.GetOutput()); w.SetFileName(f"{sys.argv[1]}/vtk_{mode}.vtp")
+    w.SetCompressorTypeToNone()
+    if mode == "ascii": w.SetDataModeToAscii()
+    else: w.SetDataModeToAppended(); w.EncodeAppendedDataOff()
+    w.Write()
+PY
+    ;;
   esac
 }
-max_len() { case $1 in fuzz_raw) echo 40000 ;; fuzz_vdb) echo 65536 ;; fuzz_ply | fuzz_nifti | fuzz_nrrd | fuzz_tiff) echo 16384 ;;
+max_len() { case $1 in fuzz_raw) echo 40000 ;; fuzz_vdb) echo 65536 ;; fuzz_ply | fuzz_vtp | fuzz_nifti | fuzz_nrrd | fuzz_tiff) echo 16384 ;;
   fuzz_dicom) echo 32768 ;; *) echo 8192 ;; esac; }
 dict() { case $1 in fuzz_raw | fuzz_vdb) ;; *) echo "fuzz/dict/${1#fuzz_}.dict" ;; esac; }
 
