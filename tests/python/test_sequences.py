@@ -163,20 +163,28 @@ def test_resume_reads_vtp_frames_back_also_as_vtk_writes_them(isouq_cli, tmp_pat
     fog_cache(tmp_path / "cache")
     args = ["cache/fluid_data_####.vdb", "-k", "0.05", "-o", "v/m.####.vtp"]
     run(isouq_cli, *args, "--summary", "a.json", cwd=tmp_path)
-    ours = tmp_path / "v/m.0002.vtp"
-    reader = vtk_xml.vtkXMLPolyDataReader()
-    reader.SetFileName(str(ours))
-    reader.Update()
-    writer = vtk_xml.vtkXMLPolyDataWriter()
-    writer.SetInputData(reader.GetOutput())
-    writer.SetFileName(str(ours))
-    writer.SetDataModeToAppended()
-    writer.EncodeAppendedDataOff()
-    writer.SetCompressorTypeToNone()
-    writer.SetHeaderTypeToUInt64()
-    assert writer.Write() == 1
+    def rewrite(frame, ascii):  # frame's .vtp read by VTK and written by VTK, uncompressed
+        path = tmp_path / f"v/m.{frame:04d}.vtp"
+        reader = vtk_xml.vtkXMLPolyDataReader()
+        reader.SetFileName(str(path))
+        reader.Update()
+        writer = vtk_xml.vtkXMLPolyDataWriter()
+        writer.SetInputData(reader.GetOutput())
+        writer.SetFileName(str(path))
+        writer.SetCompressorTypeToNone()
+        if ascii:
+            writer.SetDataModeToAscii()
+        else:
+            writer.SetDataModeToAppended()
+            writer.EncodeAppendedDataOff()
+            writer.SetHeaderTypeToUInt64()
+        assert writer.Write() == 1
+        assert b"RangeMin" in path.read_bytes()  # VTK's writer, not ours
+        return path
+
+    ours = rewrite(2, ascii=False)
+    rewrite(6, ascii=True)
     rewritten = ours.read_bytes()
-    assert b"RangeMin" in rewritten  # VTK's writer, not ours
     (tmp_path / "v/m.0003.vtp").unlink()
 
     def resume(*extra):  # without --quiet: the notes say which frames are meshed again, and why

@@ -54,6 +54,8 @@ bool parseCount(const char* text, std::uint64_t& out)
     return error == std::errc() && at == end;
 }
 
+bool isArray(const std::string& element) { return element == "DataArray" || element == "Array"; }
+
 void XMLCALL startElement(void* data, const XML_Char* name, const XML_Char** attributes)
 {
     Head& h = *static_cast<Head*>(data);
@@ -62,7 +64,7 @@ void XMLCALL startElement(void* data, const XML_Char* name, const XML_Char** att
     const auto count = [&](const char* value, std::uint64_t& out) {
         if (!parseCount(value, out) && h.error.empty()) h.error = element + " has a malformed count '" + value + "'";
     };
-    if (element == "DataArray" || element == "Array") {
+    if (isArray(element)) {
         Array a;
         a.group = parent;
         for (const XML_Char** p = attributes; *p; p += 2) {
@@ -100,14 +102,15 @@ void XMLCALL startElement(void* data, const XML_Char* name, const XML_Char** att
 void XMLCALL endElement(void* data, const XML_Char*)
 {
     Head& h = *static_cast<Head*>(data);
+    if (isArray(h.open.back())) h.current = -1;
     h.open.pop_back();
-    h.current = -1;
 }
 
+/// An ascii array's values: its own text, not that of elements inside it (VTK's InformationKey).
 void XMLCALL characters(void* data, const XML_Char* text, int length)
 {
     Head& h = *static_cast<Head*>(data);
-    if (h.current >= 0 && h.arrays[std::size_t(h.current)].format == "ascii")
+    if (h.current >= 0 && isArray(h.open.back()) && h.arrays[std::size_t(h.current)].format == "ascii")
         h.arrays[std::size_t(h.current)].text.append(text, std::size_t(length));
 }
 
