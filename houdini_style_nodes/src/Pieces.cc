@@ -638,54 +638,59 @@ void stageSharedFile(const Ranks& ranks, const std::string& path, const std::fun
     if (file) batch.addShared(std::move(file));
 }
 
+/// An ascii PLY by every rank (stagePlyOnRanks). A line's length depends on its values: each
+/// rank formats its runs' lines twice, first to count their bytes (every rank's runs in file
+/// order give the offsets), then to write them there.
+void stageAsciiPly(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
+    const PlyOptions& options, OutputBatch& batch)
+{
+    const std::uint64_t vertices = where.vertexBegin.back(), triangles = where.triangleBegin.back();
+    const Runs vertexRuns(where.vertexBegin, ranks.rank(), ranks.size()),
+        faceRuns(where.triangleBegin, ranks.rank(), ranks.size());
+    const std::size_t runs = vertexRuns.first.size() + faceRuns.first.size();
+    const auto eachChunk = [&](std::size_t k, const std::function<void(const std::string&)>& sink) {
+        const bool faces = k >= vertexRuns.first.size();
+        const Runs& r = faces ? faceRuns : vertexRuns;
+        const std::size_t j = faces ? k - vertexRuns.first.size() : k, end = r.local[j] + (r.last[j] - r.first[j]);
+        std::string text;
+        for (std::size_t begin = r.local[j]; begin < end; begin += kAsciiRows, text.clear()) {
+            plyAsciiRows(piece, faces, begin, std::min(end, begin + kAsciiRows), vertices, text);
+            sink(text);
+        }
+    };
+    Words bytes(runs, 0);
+    ranks.step([&] {
+        for (std::size_t k = 0; k < runs; ++k) eachChunk(k, [&](const std::string& text) { bytes[k] += text.size(); });
+    });
+    // Runs in file order: the vertex sections, then the face sections, each rank by rank.
+    const std::vector<Words> all = ranks.allgather(bytes);
+    Words at(runs);
+    std::uint64_t total = 0;
+    for (std::size_t k = 0; k < runs; ++k)
+        for (int r = 0; r < ranks.size(); ++r) {
+            if (r == ranks.rank()) at[k] = total;
+            total += all[std::size_t(r)][k];
+        }
+    stageSharedFile(ranks, path,
+        [&](SharedMeshFile& file) { return file.plyHeader(piece, vertices, triangles, options); },
+        [&](std::uint64_t headBytes) { return headBytes + total; },
+        [&](SharedFile& shared, std::uint64_t headBytes) {
+            for (std::size_t k = 0; k < runs; ++k)
+                eachChunk(k, [&](const std::string& text) {
+                    shared.writeAt(headBytes + at[k], text.data(), text.size(), path);
+                    at[k] += text.size();
+                });
+        },
+        batch);
+}
+
 } // namespace
 
 void stagePlyOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& where, const std::string& path,
     const PlyOptions& options, OutputBatch& batch)
 {
     const std::uint64_t vertices = where.vertexBegin.back(), triangles = where.triangleBegin.back();
-    if (options.encoding == PlyEncoding::Ascii) {
-        // A line's length depends on its values: each rank formats its runs' lines twice, first
-        // to count their bytes (every rank's runs in file order give the offsets), then to write.
-        const Runs vertexRuns(where.vertexBegin, ranks.rank(), ranks.size()),
-            faceRuns(where.triangleBegin, ranks.rank(), ranks.size());
-        const std::size_t runs = vertexRuns.first.size() + faceRuns.first.size();
-        const auto eachChunk = [&](std::size_t k, const std::function<void(const std::string&)>& sink) {
-            const bool faces = k >= vertexRuns.first.size();
-            const Runs& r = faces ? faceRuns : vertexRuns;
-            const std::size_t j = faces ? k - vertexRuns.first.size() : k, end = r.local[j] + (r.last[j] - r.first[j]);
-            std::string text;
-            for (std::size_t begin = r.local[j]; begin < end; begin += kAsciiRows, text.clear()) {
-                plyAsciiRows(piece, faces, begin, std::min(end, begin + kAsciiRows), vertices, text);
-                sink(text);
-            }
-        };
-        Words bytes(runs, 0);
-        ranks.step([&] {
-            for (std::size_t k = 0; k < runs; ++k) eachChunk(k, [&](const std::string& text) { bytes[k] += text.size(); });
-        });
-        // Runs in file order: the vertex sections, then the face sections, each rank by rank.
-        const std::vector<Words> all = ranks.allgather(bytes);
-        Words at(runs);
-        std::uint64_t total = 0;
-        for (std::size_t k = 0; k < runs; ++k)
-            for (int r = 0; r < ranks.size(); ++r) {
-                if (r == ranks.rank()) at[k] = total;
-                total += all[std::size_t(r)][k];
-            }
-        stageSharedFile(ranks, path,
-            [&](SharedMeshFile& file) { return file.plyHeader(piece, vertices, triangles, options); },
-            [&](std::uint64_t headBytes) { return headBytes + total; },
-            [&](SharedFile& shared, std::uint64_t headBytes) {
-                for (std::size_t k = 0; k < runs; ++k)
-                    eachChunk(k, [&](const std::string& text) {
-                        shared.writeAt(headBytes + at[k], text.data(), text.size(), path);
-                        at[k] += text.size();
-                    });
-            },
-            batch);
-        return;
-    }
+    if (options.encoding == PlyEncoding::Ascii) return stageAsciiPly(ranks, piece, where, path, options, batch);
     const std::pair<std::size_t, std::size_t> strides = plyRowBytes(piece);
     const std::size_t vStride = strides.first, fStride = strides.second; // captured below (C++17)
     stageSharedFile(ranks, path,
@@ -721,6 +726,7 @@ void stageVtpOnRanks(const Ranks& ranks, const Mesh& piece, const MeshPiece& whe
     std::optional<VtpPieceLayout> layout;
     stageSharedFile(ranks, path,
         [&](SharedMeshFile& file) { return file.vtpHead(piece, vertices, triangles, options); },
+        // The layout's offsets count from the end of the head, whose size this call learns.
         [&](std::uint64_t headBytes) { return layout.emplace(piece, vertices, triangles, headBytes).fileBytes(); },
         [&](SharedFile& shared, std::uint64_t) {
             const auto write = [&](std::uint64_t at, const char* data, std::size_t bytes) { shared.writeAt(at, data, bytes, path); };

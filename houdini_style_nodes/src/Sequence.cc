@@ -152,6 +152,30 @@ FramePlan planFrames(const SequenceRequest& request, const FramePattern& in, con
     return plan;
 }
 
+/// Frames [next, count) in one process, or on ranks one at a time, each by every rank: @a jobs
+/// threads (ranks: 1) take the next frame in turn; the first failure stops them and is rethrown.
+void runFrameThreads(int jobs, std::size_t next, std::size_t count, const std::function<void(std::size_t)>& mesh)
+{
+    std::atomic<std::size_t> cursor{next};
+    std::mutex mutex;
+    std::exception_ptr failure;
+    std::atomic<bool> failed{false};
+    auto worker = [&] {
+        for (std::size_t i; !failed && (i = cursor++) < count;) try {
+                mesh(i);
+            } catch (...) {
+                std::lock_guard<std::mutex> lock(mutex);
+                if (!failure) failure = std::current_exception();
+                failed = true;
+            }
+    };
+    std::vector<std::thread> workers;
+    for (int j = 1; j < std::min<int>(jobs, int(count - std::min(next, count))); ++j) workers.emplace_back(worker);
+    worker();
+    for (std::thread& t : workers) t.join();
+    if (failure) std::rethrow_exception(failure);
+}
+
 /// Frames [next, count) under MPI with @a jobs frame jobs (docs/mpi.md "Sequences"): the ranks
 /// split into @a jobs groups (rank r in group r mod jobs, whose rank 0 is rank g), and in each
 /// round group g meshes frame next + jobs k + g with @a mesh, which leaves its entry on the
@@ -416,30 +440,14 @@ nlohmann::json runSequence(const SequenceRequest& request, openvdb::util::NullIn
     }
 
     // The rest, frameJobs at a time; each frame is independent and uses every thread (rank).
-    if (ranks && request.frameJobs > 1) {
+    if (ranks && request.frameJobs > 1)
         runFrameJobs(*ranks, request.frameJobs, next, frames.size(), entries, warnings,
             [&](std::size_t i, const Ranks& group) { runFrame(i, base, &group); }, report);
-        next = frames.size();
-    }
-    std::atomic<std::size_t> cursor{next};
-    std::exception_ptr failure;
-    std::atomic<bool> failed{false};
-    auto worker = [&] {
-        for (std::size_t i; !failed && (i = cursor++) < frames.size();) try {
-                runFrame(i, base, ranks);
-                report(i);
-            } catch (...) {
-                std::lock_guard<std::mutex> lock(mutex);
-                if (!failure) failure = std::current_exception();
-                failed = true;
-            }
-    };
-    std::vector<std::thread> workers;
-    for (int j = 1; j < std::min<int>(request.frameJobs, int(frames.size() - std::min(next, frames.size()))); ++j)
-        workers.emplace_back(worker);
-    worker();
-    for (std::thread& t : workers) t.join();
-    if (failure) std::rethrow_exception(failure);
+    else
+        runFrameThreads(request.frameJobs, next, frames.size(), [&](std::size_t i) {
+            runFrame(i, base, ranks);
+            report(i);
+        });
 
     nlohmann::json summary = nlohmann::json::object(); // on ranks other than 0, empty
     onRoot([&] {
