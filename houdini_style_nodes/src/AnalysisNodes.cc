@@ -137,10 +137,12 @@ void cookColorMap(CookContext& ctx)
             const std::vector<double> range = percentilesOnRanks(*ctx.ranks, values, finite, {2.0, 98.0});
             lo = range[0], hi = range[1];
         }
+    } else if (given) { // the count alone
+        finite = std::uint64_t(std::count_if(values.begin(), values.end(), [](float v) { return std::isfinite(v); }));
     } else {
         const std::vector<double> sorted = sortedFinite(values);
         finite = sorted.size();
-        if (!given && !sorted.empty()) lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
+        if (!sorted.empty()) lo = percentileOf(sorted, 2.0), hi = percentileOf(sorted, 98.0);
     }
     const std::uint64_t noValue = all - finite;
     if (noValue)

@@ -187,10 +187,9 @@ VolumeOnRanks readVolumeOnRanks(const Ranks& ranks, VolumeRequest request, openv
     if (std::isnan(out.volume->isovalue)) { // a fog volume without an isovalue: Otsu of the whole
         std::array<std::uint64_t, 256> histogram{};
         ranks.step([&] { histogram = activeValueHistogram(grid, scan.min, scan.max, mine, rank == 0); });
-        std::array<std::uint64_t, 256> total{};
-        for (const Words& w : ranks.allgather(Words(histogram.begin(), histogram.end())))
-            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
-        out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, total));
+        const Words whole = ranks.sum(Words(histogram.begin(), histogram.end()));
+        std::copy(whole.begin(), whole.end(), histogram.begin());
+        out.volume->isovalue = float(otsuOfActiveValues(grid, scan.min, scan.max, histogram));
     }
     // An empty grid with allow_empty, as one process reads it (VolumeNodes.cc): an empty mesh.
     out.empty = request.allowEmpty && box.empty();
@@ -549,7 +548,8 @@ ValuesOnRanks orderStatisticsOnRanks(const Ranks& ranks, const std::vector<float
     };
     ValuesOnRanks out;
     const auto finite = std::count_if(values.begin(), values.end(), [](float v) { return std::isfinite(v); });
-    for (const Words& w : ranks.allgather({values.size(), std::uint64_t(finite)})) out.count += w[0], out.finite += w[1];
+    const Words counts = ranks.sum({values.size(), std::uint64_t(finite)});
+    out.count = counts[0], out.finite = counts[1];
     if (ks.empty()) return out; // the counts alone
     const std::size_t n = ks.size();
     std::vector<std::uint32_t> prefix(n, 0); // the key's bytes found so far
@@ -563,9 +563,7 @@ ValuesOnRanks orderStatisticsOnRanks(const Ranks& ranks, const std::vector<float
                 for (std::size_t i = 0; i < n; ++i)
                     if ((key & high) == prefix[i]) ++histogram[256 * i + ((key >> shift) & 255u)];
             }
-        Words total(histogram.size(), 0);
-        for (const Words& w : ranks.allgather(histogram))
-            for (std::size_t b = 0; b < total.size(); ++b) total[b] += w[b];
+        const Words total = ranks.sum(histogram);
         for (std::size_t i = 0; i < n; ++i) {
             std::uint32_t byte = 0;
             while (left[i] >= total[256 * i + byte]) left[i] -= total[256 * i + byte++];

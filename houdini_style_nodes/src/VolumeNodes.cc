@@ -253,14 +253,11 @@ void cookTruth(CookContext& ctx)
     settings.perMethodDistance = ctx.parms.getBool("per_method_distance");
     TruthReport report = addTruthColumns(out->mesh, *volume.truth, out->isovalue, settings);
     if (ctx.ranks) { // each vertex on its own: a rank's piece gives its vertices' columns, the counts add up
-        const Words mine = {report.vertices, report.multiRootEdges, report.noRootEdges, report.failedProjections};
-        report = TruthReport();
-        for (const Words& w : ctx.ranks->allgather(mine)) {
-            report.vertices += std::size_t(w[0]);
-            report.multiRootEdges += std::size_t(w[1]);
-            report.noRootEdges += std::size_t(w[2]);
-            report.failedProjections += std::size_t(w[3]);
-        }
+        const Words w = ctx.ranks->sum({report.vertices, report.multiRootEdges, report.noRootEdges, report.failedProjections});
+        report.vertices = std::size_t(w[0]);
+        report.multiRootEdges = std::size_t(w[1]);
+        report.noRootEdges = std::size_t(w[2]);
+        report.failedProjections = std::size_t(w[3]);
     }
     if (report.failedProjections)
         ctx.warn(std::to_string(report.failedProjections) + " vertices: the projection on the true surface "

@@ -224,8 +224,8 @@ DensePiece loadScanPiece(SliceSource& source, const VolumeRequest& request, cons
         checkOtsuRange(range);
         comm.agree([&] { part = sourceStats(source, z0, z1, &range, interrupter); });
         std::array<std::uint64_t, 256> histogram{};
-        for (const PieceComm::Words& w : comm.allgather(PieceComm::Words(part.histogram.begin(), part.histogram.end())))
-            for (std::size_t b = 0; b < histogram.size(); ++b) histogram[b] += w[b];
+        const PieceComm::Words total = comm.sum(PieceComm::Words(part.histogram.begin(), part.histogram.end()));
+        std::copy(total.begin(), total.end(), histogram.begin());
         isovalue = float(otsuThreshold(histogram, range.min, range.max));
     }
     if (!std::isfinite(isovalue)) throw InputError("isovalue " + fmt(isovalue) + " is not finite");

@@ -45,6 +45,15 @@ public:
     }
     /// Runs @a body, then agrees: when it threw on any piece, every piece throws.
     virtual void agree(const std::function<void()>& body) const = 0;
+    /// Every piece's @a words (each piece as many) added element by element, on every piece:
+    /// counts and histograms of the whole.
+    Words sum(const Words& words) const
+    {
+        Words total(words.size(), 0);
+        for (const Words& w : allgather(words))
+            for (std::size_t i = 0; i < total.size(); ++i) total[i] += w[i];
+        return total;
+    }
 };
 
 /// Numbers as Words and back, bit for bit, so that what one piece computes reaches the others
