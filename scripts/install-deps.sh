@@ -9,6 +9,7 @@ packages=(
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
   libnifti2-dev libteem-dev libtiff-dev libgdcm-dev libexpat1-dev
   libopenmpi-dev openmpi-bin
+  slurmd slurmctld slurm-client munge
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
   python3-openimageio python3-openvdb hyperfine strace

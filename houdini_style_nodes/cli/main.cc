@@ -262,6 +262,10 @@ int isouq_cli_main(int argc, char** argv)
     std::signal(SIGXFSZ, SIG_IGN);
 #ifdef ISOUQ_HAVE_MPI
     std::unique_ptr<MpiSession> mpi;
+    if (const std::string why = isouq::nodes::srunWithoutPmix(); !why.empty()) {
+        if (std::atoi(std::getenv("SLURM_PROCID")) == 0) printError(why); // one line, from the first task
+        return kExitBadInput;
+    }
     if (isouq::nodes::launchedByMpiLauncher()) {
         mpi = std::make_unique<MpiSession>(argc, argv);
         sPrintsErrors = mpi->ranks->rank() == 0;

@@ -195,6 +195,17 @@ bool launchedByMpiLauncher()
     return tasks && std::atoi(tasks) > 1 && std::getenv("SLURM_PROCID");
 }
 
+std::string srunWithoutPmix()
+{
+    if (std::getenv("PMIX_RANK") || std::getenv("OMPI_COMM_WORLD_SIZE")) return {};
+    const char* tasks = std::getenv("SLURM_STEP_NUM_TASKS");
+    // One task without PMI is a plain run; with PMI-2 (PMI_RANK) even one task fails in MPI_Init.
+    if (!tasks || !std::getenv("SLURM_PROCID") || (std::atoi(tasks) <= 1 && !std::getenv("PMI_RANK"))) return {};
+    const char* type = std::getenv("SLURM_MPI_TYPE");
+    return "srun started " + std::string(tasks) + (std::atoi(tasks) == 1 ? " task" : " tasks") + " with --mpi=" + (type && *type ? type : "none") +
+        ", which Open MPI cannot join: run srun --mpi=pmix (or set MpiDefault=pmix in slurm.conf)";
+}
+
 std::unique_ptr<Ranks> mpiRanks(MPI_Comm comm, std::function<bool()> interrupted)
 {
     return std::make_unique<MpiRanks>(comm, std::move(interrupted));

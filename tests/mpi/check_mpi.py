@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """isouq mesh under mpirun against one process (SPEC §10 "MPI"; docs/mpi.md).
 
-  check_mpi.py --cli ISOUQ --mpirun MPIRUN --np N --case CASE --data DIR --work DIR
+  check_mpi.py --cli ISOUQ --mpirun MPIRUN --np N --case CASE[,CASE...] --data DIR --work DIR
+  check_mpi.py --cli ISOUQ --srun SRUN ...   (a private one-machine Slurm cluster, slurm_local.py)
 
 Cases: sphere, sphere_linear, fog (smoke.vdb, Otsu isovalue), fog_k (smoke.vdb --isovalue 0.1),
 raw (fuel, uint8, Otsu), raw_float (skull, float32, Otsu, cubic), raw_k (engine --isovalue 71),
@@ -12,6 +13,8 @@ scans with headers written here from the data's raw scans by nibabel, tifffile a
 (SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), color (--color-by), bad_input, interrupt,
 threads (-j 0's share of the cores), progress (rank 0's progress lines), sequence (a .vdb cache
 of four frames, the first empty: every frame, --resume, a broken frame and the sequence errors).
+Under --srun also: slurm_signals (scancel and Ctrl-C through srun), slurm_no_pmix (srun without
+--mpi=pmix).
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -36,6 +39,9 @@ def run(cmd, **kw):
 
 
 def mpirun(args, np_):
+    """The launcher's words before the command: mpirun, or srun with Open MPI's PMIx."""
+    if args.srun:
+        return [args.srun, "--mpi=pmix", "-n", str(np_)]
     return [args.mpirun, "--oversubscribe", "--allow-run-as-root", "-q", "-np", str(np_)]
 
 
@@ -580,6 +586,77 @@ def threads(args):
         print(f"np {args.np}, {cores} cores, {' '.join(flags) or 'no -j'}: {want} threads per rank")
 
 
+def ranks_named(args, marker):
+    """The rank processes whose command line names @marker (srun's tasks are children of
+    slurmstepd, not of srun), once each has its SIGINT and SIGTERM handlers."""
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        ranks = []
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                words = open(f"/proc/{pid}/cmdline", "rb").read().split(b"\0")
+            except OSError:
+                continue
+            if marker.encode() in words and os.path.basename(words[0]) == b"isouq":
+                ranks.append(int(pid))
+        if len(ranks) == args.np and all(map(handles_signals, ranks)):
+            return ranks
+        time.sleep(0.02)
+    sys.exit(f"the {args.np} ranks naming {marker} did not start")
+
+
+def slurm_signals(args):
+    """scancel (Slurm's SIGTERM, SIGKILL only KillWait seconds later) stops every rank at its next
+    check: one line, exit 143 from every rank and from srun, nothing left. Ctrl-C through srun
+    (--quit-on-interrupt, as a second Ctrl-C within a second) is SIGINT and at once SIGKILL: srun
+    exits 137 and, the signal coming before the write, no file is left either."""
+    work = os.path.join(args.work, f"slurm_signals_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    src = big_sphere(args.work)
+    for how in ("scancel", "ctrl-c"):
+        out = os.path.join(work, f"{how}.ply")
+        p = subprocess.Popen(mpirun(args, args.np)[:1] + (["--quit-on-interrupt"] if how == "ctrl-c" else []) +
+                             mpirun(args, args.np)[1:] + [args.cli, "mesh", src, "-o", out, "-j", "1",
+                                                          "--hidden-features", "--no-hidden-filter", "--subdivisions", "12"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ranks_named(args, out)
+        if how == "scancel":
+            jobs = run(["squeue", "-h", "-o", "%i"]).stdout.split()
+            if len(jobs) != 1:
+                sys.exit(f"squeue lists {jobs}, expected the one job")
+            run(["scancel", jobs[0]])
+        else:
+            p.send_signal(signal.SIGINT)
+        got, err = p.communicate(timeout=300)
+        left = [f for f in os.listdir(work) if f.startswith(f"{how}.") or f.startswith(".isouq-")]
+        if "wrote" in got or left:
+            sys.exit(f"{how}: the run ended with files {left}\n{got}\n{err}")
+        interrupted = [l for l in err.splitlines() if l.startswith("isouq: interrupted")]
+        expect = (143, 1) if how == "scancel" else (137, 0)
+        if (p.returncode, len(interrupted)) != expect:
+            sys.exit(f"{how}: srun exit {p.returncode}, {len(interrupted)} interrupted lines; expected {expect}\n{err}")
+        print(f"np {args.np}: {how} under srun: exit {p.returncode}, nothing written")
+
+
+def slurm_no_pmix(args):
+    """srun without PMIx (Slurm's default MpiDefault=none, or --mpi=pmi2): one error line from
+    the first task, exit 2 from every task, nothing written; one task without PMI is a plain run."""
+    work = os.path.join(args.work, f"slurm_no_pmix_np{args.np}")
+    os.makedirs(work, exist_ok=True)
+    out = os.path.join(work, "out.ply")
+    for mpi in ([], ["--mpi=pmi2"]):
+        r = run([args.srun, "-n", str(args.np)] + mpi + [args.cli, "mesh", os.path.join(args.data, "sphere.vdb"), "-o", out])
+        lines = [l for l in r.stderr.splitlines() if l.startswith("isouq: error:")]
+        if args.np == 1 and not mpi:  # one task without PMI: no launcher as far as isouq knows, a plain run
+            if r.returncode != 0 or not os.path.exists(out):
+                sys.exit(f"srun -n 1 {mpi}: exit {r.returncode}\n{r.stderr}")
+            os.remove(out)
+            continue
+        if r.returncode != 2 or len(lines) != 1 or "srun --mpi=pmix" not in lines[0] or os.listdir(work):
+            sys.exit(f"srun {mpi}: exit {r.returncode}, error lines {lines}, left {os.listdir(work)}\n{r.stderr}")
+        print(f"np {args.np}: srun {' '.join(mpi) or '(MpiDefault=none)'}: {lines[0]}")
+
+
 def progress(args):
     """Rank 0 alone shows progress under mpirun, as lines (its stderr is the launcher's pipe):
     a line at each tenth of a stage once it has run ISOUQ_PROGRESS_SECONDS, then one saying it is
@@ -627,12 +704,31 @@ def progress(args):
 
 def main():
     ap = argparse.ArgumentParser()
-    for k in ("cli", "mpirun", "case", "data", "work"):
+    for k in ("cli", "case", "data", "work"):
         ap.add_argument("--" + k, required=True)
+    launcher = ap.add_mutually_exclusive_group(required=True)
+    launcher.add_argument("--mpirun")
+    launcher.add_argument("--srun")
     ap.add_argument("--np", type=int, required=True)
     args = ap.parse_args()
     os.makedirs(args.work, exist_ok=True)
+    if not args.srun:
+        for case in args.case.split(","):
+            run_case(args, case)
+        return
+    from slurm_local import LocalSlurm, missing_programs
+    if os.geteuid() != 0 or missing_programs():
+        print(f"skipped: the srun tests start slurmd, which needs root and {' '.join(missing_programs()) or 'Slurm'}")
+        sys.exit(77)
+    with LocalSlurm(os.path.join(args.work, f"slurm_np{args.np}"), cpus=max(4, args.np)) as env:
+        os.environ.update(env)
+        for case in args.case.split(","):
+            run_case(args, case)
+
+
+def run_case(args, case):
     sphere, smoke = os.path.join(args.data, "sphere.vdb"), os.path.join(args.data, "smoke.vdb")
+    args.case = case
     if args.case == "sphere":
         compare(args, "sphere", sphere, [], grid="ls_sphere")
     elif args.case == "sphere_linear":
@@ -690,6 +786,10 @@ def main():
         progress(args)
     elif args.case == "sequence":
         sequence(args)
+    elif args.case == "slurm_signals" and args.srun:
+        slurm_signals(args)
+    elif args.case == "slurm_no_pmix" and args.srun:
+        slurm_no_pmix(args)
     else:
         sys.exit("unknown case " + args.case)
 

@@ -9,6 +9,7 @@
 
 #include <functional>
 #include <memory>
+#include <string>
 
 namespace isouq::nodes {
 
@@ -16,6 +17,11 @@ namespace isouq::nodes {
 /// mpirun (OMPI_COMM_WORLD_SIZE), a PMIx or PMI launcher (PMIX_RANK, PMI_SIZE), or srun
 /// (SLURM_STEP_NUM_TASKS > 1). Read from the environment, before MPI_Init.
 bool launchedByMpiLauncher();
+
+/// The error line when srun started this process without PMIx, as one of several tasks
+/// (`--mpi=none`, Slurm's default) or with PMI-2 (`--mpi=pmi2`): Debian's Open MPI cannot start
+/// then and would print a page of text instead. Empty otherwise (docs/mpi.md "Slurm").
+std::string srunWithoutPmix();
 
 /// The ranks of @a comm (the communicator is passed in, never global); @a interrupted says
 /// whether a signal arrived on this rank.
