@@ -61,8 +61,9 @@ puts it (t_linear ...); see docs/ply-format.md. Outputs are written atomically: 
 interrupted run (Ctrl-C, exit 130) leaves no partial file and never clobbers an existing one.
 The command runs a node graph (docs/nodes.md): --save-graph G.json writes it, and
 'isouq run G.json' from the same folder writes the same files.
-Under mpirun or srun the same command meshes on every rank into one file; rank 0 prints a
-progress line at each tenth of a stage that has run ISOUQ_PROGRESS_SECONDS (10) (docs/mpi.md).
+Under mpirun or srun (--mpi=pmix) the same command meshes on every rank into one file; rank 0
+prints a progress line at each tenth of a stage that has run ISOUQ_PROGRESS_SECONDS (10)
+(docs/mpi.md).
 With an input of 16 MiB or more, isouq restarts itself once with glibc's malloc.hugetlb=1 and
 malloc.arena_max=1 (2 MiB memory pages for every thread: fewer page faults); ISOUQ_HUGE_PAGES=0
 turns that off (docs/mesher.md).
