@@ -615,9 +615,11 @@ def slurm_signals(args):
     src = big_sphere(args.work)
     for how in ("scancel", "ctrl-c"):
         out = os.path.join(work, f"{how}.ply")
-        p = subprocess.Popen(mpirun(args, args.np)[:1] + (["--quit-on-interrupt"] if how == "ctrl-c" else []) +
-                             mpirun(args, args.np)[1:] + [args.cli, "mesh", src, "-o", out, "-j", "1",
-                                                          "--hidden-features", "--no-hidden-filter", "--subdivisions", "12"],
+        launch = mpirun(args, args.np)
+        if how == "ctrl-c":
+            launch.insert(1, "--quit-on-interrupt")
+        p = subprocess.Popen(launch + [args.cli, "mesh", src, "-o", out, "-j", "1", "--hidden-features",
+                                       "--no-hidden-filter", "--subdivisions", "12"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ranks_named(args, out)
         if how == "scancel":
