@@ -13,8 +13,8 @@ scans with headers written here from the data's raw scans by nibabel, tifffile a
 (SCANS: nifti, nifti_gz, nrrd, nhdr_gz, tiff, tiff_folder, dicom), color (--color-by), bad_input, interrupt,
 threads (-j 0's share of the cores), progress (rank 0's progress lines), sequence (a .vdb cache
 of four frames, the first empty: every frame, --resume, a broken frame and the sequence errors).
-Under --srun also: slurm_signals (scancel and Ctrl-C through srun), slurm_no_pmix (srun without
---mpi=pmix).
+Under --srun also: slurm_signals (scancel and Ctrl-C through srun), slurm_threads (-j 0 on the
+CPUs Slurm binds a rank to), slurm_no_pmix (srun without --mpi=pmix).
 Exit 0 when the check holds; prints what differs otherwise.
 """
 import argparse
@@ -640,6 +640,22 @@ def slurm_signals(args):
         print(f"np {args.np}: {how} under srun: exit {p.returncode}, nothing written")
 
 
+def slurm_threads(args):
+    """-j 0 (the default) under srun: each rank runs a thread on each CPU Slurm bound it to
+    (task/affinity): all of the node's with one task, one each with a task a CPU."""
+    cpus = len(os.sched_getaffinity(0))
+    out, summary = (os.path.join(args.work, f"slurm_threads_np{args.np}.{e}") for e in ("ply", "json"))
+    for tasks, per_task in ((1, cpus), (min(args.np, cpus), 1)):
+        r = run([args.srun, "--mpi=pmix", "-n", str(tasks), "-c", str(per_task), args.cli, "mesh",
+                 os.path.join(args.data, "sphere.vdb"), "-o", out, "--summary", summary, "-q"])
+        if r.returncode != 0:
+            sys.exit(f"srun -n {tasks} -c {per_task}: exit {r.returncode}\n{r.stderr}")
+        threads = [rank["threads"] for rank in json.load(open(summary))["ranks"]]
+        if threads != [per_task] * tasks:
+            sys.exit(f"srun -n {tasks} -c {per_task}: the ranks ran {threads} threads")
+        print(f"np {args.np}: srun -n {tasks} -c {per_task}: threads {threads}")
+
+
 def slurm_no_pmix(args):
     """srun without PMIx (Slurm's default MpiDefault=none, or --mpi=pmi2): one error line from
     the first task, exit 2 from every task, nothing written; one task without PMI is a plain run."""
@@ -722,7 +738,9 @@ def main():
     if os.geteuid() != 0 or missing_programs():
         print(f"skipped: the srun tests start slurmd, which needs root and {' '.join(missing_programs()) or 'Slurm'}")
         sys.exit(77)
-    with LocalSlurm(os.path.join(args.work, f"slurm_np{args.np}"), cpus=max(4, args.np)) as env:
+    # Slurm's CPUs and binding where the machine has a core a rank, else a node of 4 CPUs unbound.
+    cores = len(os.sched_getaffinity(0))
+    with LocalSlurm(os.path.join(args.work, f"slurm_np{args.np}"), cpus=None if args.np <= cores else max(4, args.np)) as env:
         os.environ.update(env)
         for case in args.case.split(","):
             run_case(args, case)
@@ -790,6 +808,8 @@ def run_case(args, case):
         sequence(args)
     elif args.case == "slurm_signals" and args.srun:
         slurm_signals(args)
+    elif args.case == "slurm_threads" and args.srun:
+        slurm_threads(args)
     elif args.case == "slurm_no_pmix" and args.srun:
         slurm_no_pmix(args)
     else:

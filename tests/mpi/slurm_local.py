@@ -3,12 +3,17 @@ slurmctld and slurmd from Debian's packages, started in the foreground in a fold
 on free ports, and stopped with the test (each also dies with the test's process). Needs root:
 slurmd starts tasks as the user that submits them.
 
-    with LocalSlurm(folder, cpus=4) as env:
+    with LocalSlurm(folder) as env:
         subprocess.run(["srun", "--mpi=pmix", "-n", "2", ...], env=env)
+
+By default the node has the CPUs slurmd finds and binds each task to the CPUs it was given
+(task/affinity), as a cluster does; LocalSlurm(folder, cpus=N) claims N CPUs instead, without
+binding, so that more tasks than cores can run.
 """
 import ctypes
 import os
 import random
+import re
 import shutil
 import signal
 import socket
@@ -28,14 +33,22 @@ def free_port():
         return s.getsockname()[1]
 
 
+def found_cpus():
+    """The CPUs slurmd finds on this machine (`slurmd -C`)."""
+    line = subprocess.run(["slurmd", "-C"], capture_output=True, text=True, check=True).stdout
+    return int(re.search(r"\bCPUs=(\d+)", line).group(1))
+
+
 def die_with_parent():
     """In the child before exec: SIGTERM when the test's process ends, however it ends."""
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 class LocalSlurm:
-    def __init__(self, folder, cpus):
-        self.folder, self.cpus, self.daemons = os.path.abspath(folder), cpus, []
+    def __init__(self, folder, cpus=None):
+        self.folder, self.daemons = os.path.abspath(folder), []
+        self.binds = cpus is None
+        self.cpus = found_cpus() if self.binds else cpus
 
     def __enter__(self):
         d = self.folder
@@ -52,8 +65,8 @@ class LocalSlurm:
         host = socket.gethostname().split(".")[0]
         memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2 ** 21  # half, in MiB
         conf = os.path.join(d, "slurm.conf")
-        # CPUs as asked, not as found (config_overrides), so that -n 4 runs on 2 cores. Job ids
-        # start at a random number: the PMIx plugin names its folders in /tmp by job id.
+        # CPUs as asked, not only as found (config_overrides), so that -n 4 can run on 2 cores.
+        # Job ids start at a random number: the PMIx plugin names its folders in /tmp by job id.
         with open(conf, "w") as f:
             f.write(f"""ClusterName=isouqtest
 SlurmctldHost={host}(127.0.0.1)
@@ -72,7 +85,7 @@ SlurmctldLogFile={d}/slurmctld.log
 SlurmdLogFile={d}/slurmd.log
 SlurmdParameters=config_overrides
 ProctrackType=proctrack/pgid
-TaskPlugin=task/none
+TaskPlugin=task/{"affinity" if self.binds else "none"}
 SelectType=select/cons_tres
 SelectTypeParameters=CR_CPU
 ReturnToService=2
