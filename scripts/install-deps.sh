@@ -9,7 +9,7 @@ packages=(
   catch2 libcli11-dev nlohmann-json3-dev libmuparser-dev libbenchmark-dev
   libnifti2-dev libteem-dev libtiff-dev libgdcm-dev libexpat1-dev
   libopenmpi-dev openmpi-bin
-  slurmd slurmctld slurm-client munge
+  slurmd slurmctld slurm-client munge  # the srun tests' own cluster; with no /etc/slurm/slurm.conf, Debian's units start no slurmd
   libopenvdb-tools
   python3 python3-numpy python3-matplotlib python3-pytest python3-skimage python3-meshio
   python3-openimageio python3-openvdb hyperfine strace
