@@ -202,7 +202,8 @@ std::string srunWithoutPmix()
     // One task without PMI is a plain run; with PMI-2 (PMI_RANK) even one task fails in MPI_Init.
     if (!tasks || !std::getenv("SLURM_PROCID") || (std::atoi(tasks) <= 1 && !std::getenv("PMI_RANK"))) return {};
     const char* type = std::getenv("SLURM_MPI_TYPE");
-    return "srun started " + std::string(tasks) + (std::atoi(tasks) == 1 ? " task" : " tasks") + " with --mpi=" + (type && *type ? type : "none") +
+    return "srun started " + std::string(tasks) + (std::atoi(tasks) == 1 ? " task" : " tasks") + " with --mpi=" +
+        (type && *type ? type : "none") +
         ", which Open MPI cannot join: run srun --mpi=pmix (or set MpiDefault=pmix in slurm.conf)";
 }
 
