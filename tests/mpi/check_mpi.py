@@ -621,12 +621,11 @@ def slurm_signals(args):
         p = subprocess.Popen(launch + [args.cli, "mesh", src, "-o", out, "-j", "1", "--hidden-features",
                                        "--no-hidden-filter", "--subdivisions", "12"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        ranks_named(args, out)
-        if how == "scancel":
-            jobs = run(["squeue", "-h", "-o", "%i"]).stdout.split()
-            if len(jobs) != 1:
-                sys.exit(f"squeue lists {jobs}, expected the one job")
-            run(["scancel", jobs[0]])
+        ranks = ranks_named(args, out)
+        if how == "scancel":  # the ranks' own job (an earlier case's may still be completing)
+            environ = open(f"/proc/{ranks[0]}/environ", "rb").read().split(b"\0")
+            job = next(v.split(b"=", 1)[1].decode() for v in environ if v.startswith(b"SLURM_JOB_ID="))
+            run(["scancel", job])
         else:
             p.send_signal(signal.SIGINT)
         got, err = p.communicate(timeout=300)
