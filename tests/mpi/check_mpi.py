@@ -609,7 +609,8 @@ def slurm_signals(args):
     """scancel (Slurm's SIGTERM, SIGKILL only KillWait seconds later) stops every rank at its next
     check: one line, exit 143 from every rank and from srun, nothing left. Ctrl-C through srun
     (--quit-on-interrupt, as a second Ctrl-C within a second) is SIGINT and at once SIGKILL: srun
-    exits 137 and, the signal coming before the write, no file is left either."""
+    exits 137 (130 if the ranks stop first) and, the signal coming before the write, no file is
+    left either."""
     work = os.path.join(args.work, f"slurm_signals_np{args.np}")
     os.makedirs(work, exist_ok=True)
     src = big_sphere(args.work)
@@ -633,9 +634,9 @@ def slurm_signals(args):
         if "wrote" in got or left:
             sys.exit(f"{how}: the run ended with files {left}\n{got}\n{err}")
         interrupted = [l for l in err.splitlines() if l.startswith("isouq: interrupted")]
-        expect = (143, 1) if how == "scancel" else (137, 0)
-        if (p.returncode, len(interrupted)) != expect:
-            sys.exit(f"{how}: srun exit {p.returncode}, {len(interrupted)} interrupted lines; expected {expect}\n{err}")
+        # The SIGKILL that follows srun's SIGINT may come after a rank has stopped (exit 130).
+        if (p.returncode, len(interrupted)) != (143, 1) if how == "scancel" else p.returncode not in (130, 137):
+            sys.exit(f"{how}: srun exit {p.returncode}, {len(interrupted)} interrupted lines\n{err}")
         print(f"np {args.np}: {how} under srun: exit {p.returncode}, nothing written")
 
 
