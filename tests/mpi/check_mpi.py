@@ -635,7 +635,11 @@ def slurm_signals(args):
             sys.exit(f"{how}: the run ended with files {left}\n{got}\n{err}")
         interrupted = [l for l in err.splitlines() if l.startswith("isouq: interrupted")]
         # The SIGKILL that follows srun's SIGINT may come after a rank has stopped (exit 130).
-        if (p.returncode, len(interrupted)) != (143, 1) if how == "scancel" else p.returncode not in (130, 137):
+        if how == "scancel":
+            ok = p.returncode == 143 and len(interrupted) == 1
+        else:
+            ok = p.returncode in (130, 137)
+        if not ok:
             sys.exit(f"{how}: srun exit {p.returncode}, {len(interrupted)} interrupted lines\n{err}")
         print(f"np {args.np}: {how} under srun: exit {p.returncode}, nothing written")
 
