@@ -748,6 +748,13 @@ TEST_CASE("MeshIO: readVtp refuses what it cannot read with one IoError, never a
     CHECK(outcome(lying).find("holds") != std::string::npos);
     CHECK(outcome(replaced("offset=\"0\"", "offset=\"18446744073709551615\"")) ==
           "truncated data (an array ends past the end of the file)");
+    // A size word that agrees with a huge declared count: refused before anything is allocated.
+    std::string huge = replaced("NumberOfPoints=\"50\"", "NumberOfPoints=\"10000000000\"");
+    std::uint64_t pointsOffset = 0;
+    std::sscanf(huge.c_str() + huge.find("offset=\"", huge.find("Name=\"Points\"")) + 8, "%" SCNu64, &pointsOffset);
+    const std::uint64_t hugeBytes = std::uint64_t(10000000000) * 12;
+    std::memcpy(huge.data() + huge.find("   _") + 4 + pointsOffset, &hugeBytes, 8); // the header grew
+    CHECK(outcome(huge) == "truncated data (an array ends past the end of the file)");
     // A triangle's index past the points, and a polygon that is not a triangle.
     std::string far = good;
     const std::size_t conn = far.rfind("connectivity");

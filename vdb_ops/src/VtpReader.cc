@@ -245,6 +245,8 @@ private:
         readAt(mDataStart + a.offset, reinterpret_cast<char*>(&bytes), word);
         if (a.type != "String" && (count > std::numeric_limits<std::uint64_t>::max() / size || bytes != count * size))
             fail("array '" + a.name + "' holds " + std::to_string(bytes) + " bytes, not " + std::to_string(count) + " values");
+        // Before allocating: a size word that agrees with a huge declared count still ends in the file.
+        if (bytes > mSize - mDataStart - a.offset - word) fail("truncated data (an array ends past the end of the file)");
         std::vector<char> out(static_cast<std::size_t>(bytes));
         readAt(mDataStart + a.offset + word, out.data(), bytes);
         return out;
