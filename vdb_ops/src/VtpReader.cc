@@ -233,24 +233,30 @@ private:
         if (mHead.others > 0) fail("vertices, lines or strips; only triangles (Polys) are read");
     }
 
-    /// The bytes of @a a holding @a count values (appended: checked against its block's size).
-    std::vector<char> bytesOf(const Array& a, std::uint64_t count) const
+    /// The size of appended array @a a's block, checked to hold @a count values (a String any
+    /// number of bytes) and to end in the file, before anything is allocated for it.
+    std::uint64_t blockBytes(const Array& a, std::uint64_t count) const
     {
         const std::size_t size = typeSize(a.type);
         if (size == 0) fail("array '" + a.name + "' has type '" + a.type + "'");
         if (a.format != "appended") fail("array '" + a.name + "' is " + a.format + "; appended and ascii are read");
-        const std::size_t word = mHead.headerType == "UInt64" ? 8 : 4;
         if (a.offset > mSize - mDataStart) fail("truncated data (an array ends past the end of the file)"); // no wrap below
         std::uint64_t bytes = 0;
-        readAt(mDataStart + a.offset, reinterpret_cast<char*>(&bytes), word);
+        readAt(mDataStart + a.offset, reinterpret_cast<char*>(&bytes), sizeWord());
         if (a.type != "String" && (count > std::numeric_limits<std::uint64_t>::max() / size || bytes != count * size))
             fail("array '" + a.name + "' holds " + std::to_string(bytes) + " bytes, not " + std::to_string(count) + " values");
-        // Before allocating: a size word that agrees with a huge declared count still ends in the file.
-        if (bytes > mSize - mDataStart - a.offset - word) fail("truncated data (an array ends past the end of the file)");
-        std::vector<char> out(static_cast<std::size_t>(bytes));
-        readAt(mDataStart + a.offset + word, out.data(), bytes);
-        return out;
+        // A size word that agrees with a huge declared count still has to end in the file.
+        if (bytes > mSize - mDataStart - a.offset - sizeWord()) fail("truncated data (an array ends past the end of the file)");
+        return bytes;
     }
+
+    /// The @a bytes of appended array @a a's block (blockBytes) into @a out.
+    void readBlock(const Array& a, std::uint64_t bytes, char* out) const
+    {
+        readAt(mDataStart + a.offset + sizeWord(), out, bytes);
+    }
+
+    std::size_t sizeWord() const { return mHead.headerType == "UInt64" ? 8 : 4; }
 
     /// @a count values of @a a (appended or ascii) as T.
     template <typename T>
@@ -275,14 +281,20 @@ private:
             if (out.size() != count) fail("array '" + a.name + "' has " + std::to_string(out.size()) + " values, not " + std::to_string(count));
             return out;
         }
-        const std::vector<char> raw = bytesOf(a, count);
+        const std::uint64_t bytes = blockBytes(a, count);
         out.resize(std::size_t(count));
         const auto convert = [&](auto tag) {
             using S = decltype(tag);
-            for (std::size_t i = 0; i < out.size(); ++i) {
-                S s;
-                std::memcpy(&s, raw.data() + i * sizeof(S), sizeof(S));
-                out[i] = T(s);
+            if constexpr (std::is_same_v<S, T>) { // stored as wanted (all of writeVtp's arrays): no copy
+                readBlock(a, bytes, reinterpret_cast<char*>(out.data()));
+            } else {
+                std::vector<char> raw(static_cast<std::size_t>(bytes));
+                readBlock(a, bytes, raw.data());
+                for (std::size_t i = 0; i < out.size(); ++i) {
+                    S s;
+                    std::memcpy(&s, raw.data() + i * sizeof(S), sizeof(S));
+                    out[i] = T(s);
+                }
             }
         };
         const std::string& t = a.type;
@@ -334,8 +346,8 @@ private:
                     text.remove_prefix(std::size_t(at - text.data()));
                 }
             } else {
-                const std::vector<char> raw = bytesOf(a, 0);
-                bytes.assign(raw.begin(), raw.end());
+                bytes.resize(std::size_t(blockBytes(a, 0)));
+                readBlock(a, bytes.size(), bytes.data());
             }
             for (std::size_t at = 0; at < bytes.size();) {
                 const std::size_t end = std::min(bytes.find('\0', at), bytes.size());
