@@ -755,6 +755,11 @@ TEST_CASE("MeshIO: readVtp refuses what it cannot read with one IoError, never a
     const std::uint64_t hugeBytes = std::uint64_t(10000000000) * 12;
     std::memcpy(huge.data() + huge.find("   _") + 4 + pointsOffset, &hugeBytes, 8); // the header grew
     CHECK(outcome(huge) == "truncated data (an array ends past the end of the file)");
+    // A String block's size is not tied to a count: its type is refused before the count is allocated.
+    std::string text = replaced("NumberOfPoints=\"50\"", "NumberOfPoints=\"10000000000\"");
+    const std::string points = "type=\"Float32\" Name=\"Points\"";
+    CHECK(outcome(text.replace(text.find(points), points.size(), "type=\"String\" Name=\"Points\"")) ==
+          "array 'Points' has type 'String'");
     // A triangle's index past the points, and a polygon that is not a triangle.
     std::string far = good;
     const std::size_t conn = far.rfind("connectivity");

@@ -281,6 +281,8 @@ private:
             if (out.size() != count) fail("array '" + a.name + "' has " + std::to_string(out.size()) + " values, not " + std::to_string(count));
             return out;
         }
+        // A String block's size is not checked against a count: refused before the count's allocation.
+        if (a.type == "String") fail("array '" + a.name + "' has type 'String'");
         const std::uint64_t bytes = blockBytes(a, count);
         out.resize(std::size_t(count));
         const auto convert = [&](auto tag) {
