@@ -198,11 +198,12 @@ bool launchedByMpiLauncher()
 std::string srunWithoutPmix()
 {
     if (std::getenv("PMIX_RANK") || std::getenv("OMPI_COMM_WORLD_SIZE")) return {};
-    const char* tasks = std::getenv("SLURM_STEP_NUM_TASKS");
+    const char* step = std::getenv("SLURM_STEP_NUM_TASKS");
+    const int tasks = step ? std::atoi(step) : 0;
     // One task without PMI is a plain run; with PMI-2 (PMI_RANK) even one task fails in MPI_Init.
-    if (!tasks || !std::getenv("SLURM_PROCID") || (std::atoi(tasks) <= 1 && !std::getenv("PMI_RANK"))) return {};
+    if (!step || !std::getenv("SLURM_PROCID") || (tasks <= 1 && !std::getenv("PMI_RANK"))) return {};
     const char* type = std::getenv("SLURM_MPI_TYPE");
-    return "srun started " + std::string(tasks) + (std::atoi(tasks) == 1 ? " task" : " tasks") + " with --mpi=" +
+    return "srun started " + std::to_string(tasks) + (tasks == 1 ? " task" : " tasks") + " with --mpi=" +
         (type && *type ? type : "none") +
         ", which Open MPI cannot join: run srun --mpi=pmix (or set MpiDefault=pmix in slurm.conf)";
 }
