@@ -27,10 +27,20 @@ def missing_programs():
     return [p for p in PROGRAMS if not shutil.which(p)]
 
 
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def free_ports(n):
+    """@a n distinct ports free now, below Linux's ephemeral range (32768 and up), so that no
+    outgoing connection takes one before the daemons bind it."""
+    ports = []
+    while len(ports) < n:
+        port = random.randint(20000, 32767)
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        if port not in ports:
+            ports.append(port)
+    return ports
 
 
 def found_cpus():
@@ -51,6 +61,15 @@ class LocalSlurm:
         self.cpus = found_cpus() if self.binds else cpus
 
     def __enter__(self):
+        # A port taken between the check and a daemon's bind (another cluster's, a test's): again.
+        for attempt in range(3):
+            try:
+                return self.start_cluster()
+            except RuntimeError as e:
+                if "Address already in use" not in str(e) or attempt == 2:
+                    raise
+
+    def start_cluster(self):
         d = self.folder
         if os.path.exists(d):
             shutil.rmtree(d)
@@ -65,6 +84,7 @@ class LocalSlurm:
         host = socket.gethostname().split(".")[0]
         memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2 ** 21  # half, in MiB
         conf = os.path.join(d, "slurm.conf")
+        ports = free_ports(2)
         # CPUs as asked, not only as found (config_overrides), so that -n 4 can run on 2 cores.
         # Job ids start at a random number: the PMIx plugin names its folders in /tmp by job id.
         with open(conf, "w") as f:
@@ -75,8 +95,8 @@ SlurmdUser=root
 AuthType=auth/munge
 AuthInfo=socket={sock}
 CredType=cred/munge
-SlurmctldPort={free_port()}
-SlurmdPort={free_port()}
+SlurmctldPort={ports[0]}
+SlurmdPort={ports[1]}
 StateSaveLocation={d}/state
 SlurmdSpoolDir={d}/spool
 SlurmctldPidFile={d}/slurmctld.pid
